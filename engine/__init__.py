@@ -4,10 +4,30 @@ Never imports ``service`` or ``clients``.
 """
 
 from . import shapes
+from .distance import (
+    DEFAULT_ITERATIONS,
+    KernelStats,
+    PairStatus,
+    TriangleContacts,
+    TriangleDistances,
+    TriangleSet,
+    triangle_contacts,
+    triangle_distances,
+    warmup,
+)
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
 from .mesh import MassProperties, Mesh, load_mesh
 
 __all__ = [
+    "DEFAULT_ITERATIONS",
+    "KernelStats",
+    "PairStatus",
+    "TriangleContacts",
+    "TriangleDistances",
+    "TriangleSet",
+    "triangle_contacts",
+    "triangle_distances",
+    "warmup",
     "EngineError",
     "InvalidArgumentError",
     "InvalidMeshError",

@@ -1,0 +1,460 @@
+"""Triangle–triangle distances and contacts over batches: the host API.
+
+Three kernels (see :mod:`engine.kernels`): ``"exact"`` (the oracle),
+``"iterative"`` (block Newton sweeps with a certified duality gap) and
+``"hybrid"`` (iterative, then exact for the not-converged pairs), each in
+``"float32"`` or ``"float64"``. Three forms:
+
+* :func:`triangle_distances` — paired triangles ``a[t]``, ``b[t]``;
+* :func:`triangle_contacts` with ``pairs=None`` — all pairs between two sets,
+  streamed (nothing of size ``len(a)·len(b)`` is allocated);
+* :func:`triangle_contacts` with ``pairs`` — an explicit list of index pairs.
+
+This module validates, converts, splits work across threads and assembles
+results; the kernels only see flat arrays.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from threading import Lock
+
+import numpy as np
+
+from .errors import InvalidArgumentError
+from .kernels import triangle_batch as tb
+
+__all__ = [
+    "DEFAULT_ITERATIONS",
+    "KernelStats",
+    "PairStatus",
+    "TriangleContacts",
+    "TriangleDistances",
+    "TriangleSet",
+    "triangle_contacts",
+    "triangle_distances",
+    "warmup",
+]
+
+KERNELS = {"exact": tb.EXACT, "iterative": tb.ITERATIVE, "hybrid": tb.HYBRID}
+PRECISIONS = {"float32": np.float32, "float64": np.float64}
+DEFAULT_ITERATIONS = 3
+"""Sweeps of the iterative kernel; chosen from ``benchmarks/kernels.py`` (BENCHMARKS.md)."""
+DEFAULT_RTOL = 0.01
+"""Converged when the certified gap ``U − L`` is at most ``rtol·ε`` (plus rounding)."""
+_BAND_ULPS = 64
+_SERIAL_PAIRS = 1 << 16  # below this many pairs one thread is faster than a pool
+
+
+class PairStatus(enum.IntEnum):
+    """Per-pair result of a kernel, before any fallback."""
+
+    NO_CONTACT = tb.NO_CONTACT
+    CONTACT = tb.CONTACT
+    NOT_CONVERGED = tb.NOT_CONVERGED
+
+
+@dataclass(frozen=True)
+class KernelStats:
+    """Counters of one call.
+
+    ``pairs`` triangle pairs considered; ``culled`` decided "no contact" by the
+    cheap centroid-axis bound; ``iterative`` evaluations of the iterative kernel;
+    ``fallbacks`` exact evaluations of not-converged pairs (hybrid).
+    """
+
+    pairs: int = 0
+    culled: int = 0
+    iterative: int = 0
+    fallbacks: int = 0
+
+    @classmethod
+    def from_array(cls, counts: np.ndarray) -> KernelStats:
+        return cls(*(int(c) for c in counts[: tb.N_STATS]))
+
+
+@dataclass(frozen=True)
+class TriangleDistances:
+    """Result of :func:`triangle_distances` for ``n`` pairs.
+
+    distance : (n,) float — closest distance (exact for the exact kernel, for
+        fallbacks, and within the tolerance for ``CONTACT``; an upper bound for
+        iterative ``NO_CONTACT`` / ``NOT_CONVERGED`` pairs)
+    lower : (n,) float — certified lower bound on the distance
+    point_a, point_b : (n, 3) float — closest points on A and on B
+    status : (n,) int8 — :class:`PairStatus` of the first kernel, before fallback
+    stats : KernelStats
+    """
+
+    distance: np.ndarray
+    lower: np.ndarray
+    point_a: np.ndarray
+    point_b: np.ndarray
+    status: np.ndarray
+    stats: KernelStats = field(default_factory=KernelStats)
+
+
+@dataclass(frozen=True)
+class TriangleContacts:
+    """Pairs within their contact distance, ordered by (index in a, index in b).
+
+    pairs : (m, 2) int64 — indices into a and b
+    distance : (m,) float
+    point_a, point_b : (m, 3) float
+    status : (m,) int8 — ``CONTACT``, or ``NOT_CONVERGED`` (iterative kernel only:
+        pairs that may be in contact)
+    stats : KernelStats
+    """
+
+    pairs: np.ndarray
+    distance: np.ndarray
+    point_a: np.ndarray
+    point_b: np.ndarray
+    status: np.ndarray
+    stats: KernelStats = field(default_factory=KernelStats)
+
+    def __len__(self) -> int:
+        return len(self.distance)
+
+
+class TriangleSet:
+    """Triangles prepared for the kernels in one precision.
+
+    Parameters
+    ----------
+    triangles : (n, 3, 3) float — vertex coordinates per triangle
+    precision : "float32" or "float64"
+
+    Attributes
+    ----------
+    coords : (9, n) — rows x0 y0 z0 x1 y1 z1 x2 y2 z2
+    frames : (13, n) — per-triangle normal, dual basis, inverse edge lengths, validity
+    """
+
+    def __init__(self, triangles: np.ndarray, precision: str = "float64") -> None:
+        dtype = _precision(precision)
+        tri = _as_triangles(triangles, "triangles")
+        self.dtype = np.dtype(dtype)
+        self.coords = np.ascontiguousarray(tri.reshape(-1, 9).T, dtype=dtype)
+        self.frames = np.empty((13, len(tri)), dtype=dtype)
+        one, tiny = _constants(dtype)
+        tb.frames_kernel(self.coords, self.frames, one, tiny)
+
+    def __len__(self) -> int:
+        return self.coords.shape[1]
+
+    @classmethod
+    def of(cls, triangles: np.ndarray | TriangleSet, precision: str) -> TriangleSet:
+        """``triangles`` itself if already prepared in ``precision``, else a new set."""
+        if isinstance(triangles, TriangleSet):
+            if triangles.dtype != np.dtype(_precision(precision)):
+                raise InvalidArgumentError(
+                    f"TriangleSet is {triangles.dtype.name} but precision={precision!r}"
+                )
+            return triangles
+        return cls(triangles, precision)
+
+
+def triangle_distances(
+    a: np.ndarray,
+    b: np.ndarray,
+    kernel: str = "hybrid",
+    precision: str = "float64",
+    epsilon: float | np.ndarray = 0.0,
+    *,
+    iterations: int = DEFAULT_ITERATIONS,
+    rtol: float = DEFAULT_RTOL,
+    threads: int | None = None,
+) -> TriangleDistances:
+    """Distances between paired triangles ``a[t]`` and ``b[t]``.
+
+    Parameters
+    ----------
+    a, b : (n, 3, 3) float — paired triangles (or :class:`TriangleSet`)
+    kernel : "exact", "iterative" or "hybrid"
+    precision : "float32" or "float64" — arithmetic of the kernel
+    epsilon : float or (n,) float — contact distance: a pair is in contact when
+        its distance is at most ``epsilon`` (for bodies with halos ε_a, ε_b pass
+        ε_a + ε_b)
+    iterations : int — sweeps of the iterative kernel (fixed, no early exit)
+    rtol : float — convergence: certified gap at most ``rtol · epsilon``
+    threads : int, optional — worker threads (default: all cores)
+
+    Returns
+    -------
+    TriangleDistances
+    """
+    mode = _mode(kernel)
+    dtype = _precision(precision)
+    sa, sb = TriangleSet.of(a, precision), TriangleSet.of(b, precision)
+    n = len(sa)
+    if len(sb) != n:
+        raise InvalidArgumentError(f"a and b must pair up: {n} and {len(sb)} triangles")
+    eps = _epsilon(epsilon, n, dtype, "epsilon")
+    iterations, rtol = _iteration_args(iterations, rtol)
+    one, _ = _constants(dtype)
+    band = dtype(_BAND_ULPS * np.finfo(dtype).eps)
+    distance = np.empty(n, dtype)
+    lower = np.empty(n, dtype)
+    point_a = np.empty((3, n), dtype)
+    point_b = np.empty((3, n), dtype)
+    status = np.empty(n, np.int8)
+
+    def run(start: int, stop: int) -> np.ndarray:
+        stats = np.zeros(tb.N_STATS, np.int64)
+        tb.paired_kernel(
+            sa.coords,
+            sa.frames,
+            sb.coords,
+            sb.frames,
+            eps,
+            start,
+            stop,
+            mode,
+            iterations,
+            dtype(rtol),
+            one,
+            band,
+            distance,
+            lower,
+            point_a,
+            point_b,
+            status,
+            stats,
+        )
+        return stats
+
+    stats = sum(_map_chunks(run, n, n, threads), np.zeros(tb.N_STATS, np.int64))
+    return TriangleDistances(
+        distance, lower, point_a.T.copy(), point_b.T.copy(), status, KernelStats.from_array(stats)
+    )
+
+
+def triangle_contacts(
+    a: np.ndarray | TriangleSet,
+    b: np.ndarray | TriangleSet,
+    epsilon_a: float | np.ndarray = 0.0,
+    epsilon_b: float | np.ndarray = 0.0,
+    pairs: np.ndarray | None = None,
+    kernel: str = "hybrid",
+    precision: str = "float64",
+    *,
+    iterations: int = DEFAULT_ITERATIONS,
+    rtol: float = DEFAULT_RTOL,
+    threads: int | None = None,
+) -> TriangleContacts:
+    """Triangle pairs within contact distance: all pairs, or listed pairs.
+
+    Parameters
+    ----------
+    a : (na, 3, 3) float or TriangleSet
+    b : (nb, 3, 3) float or TriangleSet
+    epsilon_a : float or (na,) float — halo of each triangle of a
+    epsilon_b : float or (nb,) float — halo of each triangle of b; pair (i, j) is
+        in contact when its distance is at most ``epsilon_a[i] + epsilon_b[j]``
+    pairs : (k, 2) int, optional — index pairs to test; all ``na·nb`` pairs
+        (streamed) when None
+    kernel, precision, iterations, rtol, threads : as :func:`triangle_distances`
+
+    Returns
+    -------
+    TriangleContacts
+    """
+    mode = _mode(kernel)
+    dtype = _precision(precision)
+    sa, sb = TriangleSet.of(a, precision), TriangleSet.of(b, precision)
+    eps_a = _epsilon(epsilon_a, len(sa), dtype, "epsilon_a")
+    eps_b = _epsilon(epsilon_b, len(sb), dtype, "epsilon_b")
+    iterations, rtol = _iteration_args(iterations, rtol)
+    one, _ = _constants(dtype)
+    band = dtype(_BAND_ULPS * np.finfo(dtype).eps)
+    common = (mode, iterations, dtype(rtol), one, band)
+
+    if pairs is None:
+        n_outer, work = len(sa), len(sa) * len(sb)
+
+        def call(start, stop, out):
+            return tb.all_pairs_kernel(
+                sa.coords, sa.frames, sb.coords, sb.frames, eps_a, eps_b, start, stop, *common, *out
+            )
+    else:
+        pi, pj = _pairs(pairs, len(sa), len(sb))
+        n_outer = work = len(pi)
+
+        def call(start, stop, out):
+            return tb.listed_kernel(
+                sa.coords,
+                sa.frames,
+                sb.coords,
+                sb.frames,
+                eps_a,
+                eps_b,
+                pi,
+                pj,
+                start,
+                stop,
+                *common,
+                *out,
+            )
+
+    def run(start: int, stop: int):
+        capacity = 1024 + 8 * (stop - start)
+        while True:
+            out = _contact_buffers(capacity, dtype)
+            count = call(start, stop, out)
+            if count <= capacity:
+                return out, count
+            capacity = count
+
+    parts = _map_chunks(run, n_outer, work, threads)
+    stats = sum((o[-1] for o, _ in parts), np.zeros(tb.N_STATS, np.int64))
+    cat = [np.concatenate([o[k][..., :c] for o, c in parts], axis=-1) for k in range(6)]
+    return TriangleContacts(
+        pairs=np.stack([cat[0], cat[1]], axis=1),
+        distance=cat[2],
+        point_a=cat[3].T.copy(),
+        point_b=cat[4].T.copy(),
+        status=cat[5],
+        stats=KernelStats.from_array(stats),
+    )
+
+
+def warmup() -> float:
+    """Compile (or load from the on-disk cache) every kernel in both precisions.
+
+    Returns the seconds it took. The service calls this before it reports ready.
+    """
+    import time
+
+    start = time.perf_counter()
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
+    for precision in PRECISIONS:
+        sa = TriangleSet(tri, precision)
+        for kernel in KERNELS:
+            triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
+            triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
+            triangle_contacts(
+                sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
+            )
+    return time.perf_counter() - start
+
+
+# ----------------------------------------------------------------------------- helpers
+
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = Lock()
+
+
+def _executor(threads: int) -> ThreadPoolExecutor:
+    """One pool per requested thread count, so ``threads`` bounds concurrency."""
+    with _pools_lock:
+        if threads not in _pools:
+            _pools[threads] = ThreadPoolExecutor(
+                max_workers=threads, thread_name_prefix=f"mrdem-kernel-{threads}"
+            )
+        return _pools[threads]
+
+
+def _map_chunks(fn, n_outer: int, work: int, threads: int | None) -> list:
+    """Run ``fn(start, stop)`` over chunks of ``range(n_outer)``; results in order."""
+    if threads is None:
+        threads = os.cpu_count() or 1
+    if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or threads < 1:
+        raise InvalidArgumentError(f"threads must be a positive integer, got {threads!r}")
+    if threads == 1 or work < _SERIAL_PAIRS or n_outer < 2:
+        return [fn(0, n_outer)]
+    bounds = np.linspace(0, n_outer, min(n_outer, 4 * threads) + 1).astype(int)
+    pool = _executor(int(threads))
+    spans = [(int(s), int(e)) for s, e in zip(bounds[:-1], bounds[1:], strict=True) if e > s]
+    return [f.result() for f in [pool.submit(fn, s, e) for s, e in spans]]
+
+
+def _contact_buffers(capacity: int, dtype) -> tuple:
+    return (
+        np.empty(capacity, np.int64),
+        np.empty(capacity, np.int64),
+        np.empty(capacity, dtype),
+        np.empty((3, capacity), dtype),
+        np.empty((3, capacity), dtype),
+        np.empty(capacity, np.int8),
+        np.zeros(tb.N_STATS, np.int64),
+    )
+
+
+def _constants(dtype) -> tuple:
+    eps = np.finfo(dtype).eps
+    return dtype(1.0), dtype(_BAND_ULPS * eps)
+
+
+def _mode(kernel: str) -> int:
+    try:
+        return KERNELS[kernel]
+    except (KeyError, TypeError):
+        raise InvalidArgumentError(
+            f"kernel must be one of {sorted(KERNELS)}, got {kernel!r}"
+        ) from None
+
+
+def _precision(precision: str):
+    try:
+        return PRECISIONS[precision]
+    except (KeyError, TypeError):
+        raise InvalidArgumentError(
+            f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}"
+        ) from None
+
+
+def _as_triangles(x, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidArgumentError(f"{name} must be a numeric (n, 3, 3) array: {exc}") from None
+    if arr.ndim != 3 or arr.shape[1:] != (3, 3):
+        raise InvalidArgumentError(f"{name} must have shape (n, 3, 3), got {arr.shape}")
+    if not np.isfinite(arr).all():
+        bad = int(np.flatnonzero(~np.isfinite(arr).reshape(len(arr), -1).all(axis=1))[0])
+        raise InvalidArgumentError(f"{name} has a non-finite coordinate in triangle {bad}")
+    return arr
+
+
+def _epsilon(eps, n: int, dtype, name: str) -> np.ndarray:
+    arr = np.asarray(eps, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise InvalidArgumentError(f"{name} must be a scalar or shape ({n},), got {arr.shape}")
+    if not (np.isfinite(arr).all() and (arr >= 0).all()):
+        raise InvalidArgumentError(f"{name} must be finite and non-negative")
+    return arr.astype(dtype)
+
+
+def _iteration_args(iterations, rtol) -> tuple[int, float]:
+    if not isinstance(iterations, int | np.integer) or not 1 <= iterations <= 64:
+        raise InvalidArgumentError(f"iterations must be an integer in [1, 64], got {iterations!r}")
+    if not (np.isfinite(rtol) and rtol >= 0):
+        raise InvalidArgumentError(f"rtol must be finite and non-negative, got {rtol!r}")
+    return int(iterations), float(rtol)
+
+
+def _pairs(pairs, na: int, nb: int) -> tuple[np.ndarray, np.ndarray]:
+    arr = np.asarray(pairs)
+    if (
+        arr.ndim != 2
+        or arr.shape[1] != 2
+        or not (np.issubdtype(arr.dtype, np.integer) or arr.size == 0)
+    ):
+        raise InvalidArgumentError(
+            f"pairs must be an integer (k, 2) array, got {arr.dtype} {arr.shape}"
+        )
+    arr = arr.astype(np.int64)
+    if (
+        arr.size
+        and (arr.min(axis=0) < 0).any()
+        or arr.size
+        and (arr[:, 0].max() >= na or arr[:, 1].max() >= nb)
+    ):
+        raise InvalidArgumentError(f"pairs index out of range (a has {na}, b has {nb} triangles)")
+    return np.ascontiguousarray(arr[:, 0]), np.ascontiguousarray(arr[:, 1])

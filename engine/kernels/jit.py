@@ -1,0 +1,77 @@
+"""Compilation options shared by the kernels.
+
+``JIT`` is for kernels the host (or another kernel) calls: cached on disk,
+GIL released, numpy error model (no Python exceptions in the pair loop).
+Fast-math is limited to contraction (FMA) and reciprocal approximation: no
+``nnan``/``ninf``, so comparisons stay IEEE-correct for degenerate input.
+
+``INLINE`` is for per-pair helpers. Numba calls another compiled function
+through a symbol LLVM does not inline at that stage, and a call inside the pair
+loop stops the loop from vectorising; ``inline="always"`` splices the helper in
+at Numba-IR level instead. That costs compile time that grows quickly with
+nested call sites, so helpers are flat scalar code and every heavy body is
+inlined into exactly one loop kernel.
+
+LLVM vectorises a pair loop only after proving (with runtime checks) that its
+stores do not overlap its ~44 input rows; its default limits on such checks
+(8 and 100) are far below that, so they are raised here, process-wide, before
+anything is compiled. The checks run once per loop, not per pair.
+"""
+
+import llvmlite.binding as llvm
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
+
+llvm.set_option("mrdem", "--runtime-memory-check-threshold=4096")
+llvm.set_option("mrdem", "--memory-check-merge-threshold=4096")
+llvm.set_option("mrdem", "--vectorize-memory-check-threshold=4096")
+
+JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"contract", "arcp"}}
+INLINE = {**JIT, "inline": "always"}
+
+
+@intrinsic
+def select(typingctx, cond, a, b):
+    """``a if cond else b`` as one LLVM ``select``, for scalars and tuples alike.
+
+    A conditional expression creates Numba-IR basic blocks; each block of an
+    inlined helper is deep-copied along with the whole variable scope, which
+    makes inlining quadratic. ``select`` keeps helpers one block long.
+    """
+    if a != b or not isinstance(cond, types.Boolean):
+        return None
+    sig = a(cond, a, b)
+
+    def codegen(context, builder, signature, args):
+        return _select(builder, args[0], args[1], args[2])
+
+    return sig, codegen
+
+
+def _select(builder, cond, x, y):
+    """Element-wise ``select`` through nested aggregates (the vectoriser needs scalars)."""
+    if isinstance(x.type, ir.LiteralStructType | ir.ArrayType):
+        out = ir.Constant(x.type, ir.Undefined)
+        n = len(x.type.elements) if isinstance(x.type, ir.LiteralStructType) else x.type.count
+        for k in range(n):
+            xk = builder.extract_value(x, k)
+            yk = builder.extract_value(y, k)
+            out = builder.insert_value(out, _select(builder, cond, xk, yk), k)
+        return out
+    return builder.select(cond, x, y)
+
+
+@intrinsic
+def sqrt(typingctx, x):
+    """``llvm.sqrt`` of a float: vectorises, unlike the ``sqrtf`` libm call that
+    ``math.sqrt`` and ``np.sqrt`` can lower to (errno semantics)."""
+    if not isinstance(x, types.Float):
+        return None
+    sig = x(x)
+
+    def codegen(context, builder, signature, args):
+        fn = builder.module.declare_intrinsic("llvm.sqrt", [args[0].type])
+        return builder.call(fn, [args[0]])
+
+    return sig, codegen
