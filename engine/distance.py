@@ -132,6 +132,8 @@ class TriangleSet:
     ----------
     coords : (9, n) — rows x0 y0 z0 x1 y1 z1 x2 y2 z2
     frames : (13, n) — per-triangle normal, dual basis, inverse edge lengths, validity
+    coords_rm, frames_rm : (n, 9), (n, 13) — row-major copies, for gathering
+        arbitrary triangles (one or two cache lines per triangle)
     """
 
     def __init__(self, triangles: np.ndarray, precision: str = "float64") -> None:
@@ -142,6 +144,8 @@ class TriangleSet:
         self.frames = np.empty((13, len(tri)), dtype=dtype)
         one, tiny = _constants(dtype)
         tb.frames_kernel(self.coords, self.frames, one, tiny)
+        self.coords_rm = np.ascontiguousarray(self.coords.T)
+        self.frames_rm = np.ascontiguousarray(self.frames.T)
 
     def __len__(self) -> int:
         return self.coords.shape[1]
@@ -278,22 +282,34 @@ def triangle_contacts(
 
         def call(start, stop, out):
             return tb.all_pairs_kernel(
-                sa.coords, sa.frames, sb.coords, sb.frames, eps_a, eps_b, start, stop, *common, *out
-            )
-    else:
-        pi, pj = _pairs(pairs, len(sa), len(sb))
-        n_outer = work = len(pi)
-
-        def call(start, stop, out):
-            return tb.listed_kernel(
                 sa.coords,
                 sa.frames,
                 sb.coords,
                 sb.frames,
+                sa.coords_rm,
+                sa.frames_rm,
+                sb.coords_rm,
+                sb.frames_rm,
                 eps_a,
                 eps_b,
-                pi,
-                pj,
+                start,
+                stop,
+                *common,
+                *out,
+            )
+    else:
+        pair_array = _pairs(pairs, len(sa), len(sb))
+        n_outer = work = len(pair_array)
+
+        def call(start, stop, out):
+            return tb.listed_kernel(
+                sa.coords_rm,
+                sa.frames_rm,
+                sb.coords_rm,
+                sb.frames_rm,
+                eps_a,
+                eps_b,
+                pair_array,
                 start,
                 stop,
                 *common,
@@ -439,22 +455,20 @@ def _iteration_args(iterations, rtol) -> tuple[int, float]:
     return int(iterations), float(rtol)
 
 
-def _pairs(pairs, na: int, nb: int) -> tuple[np.ndarray, np.ndarray]:
+def _pairs(pairs, na: int, nb: int) -> np.ndarray:
+    """Validate index pairs; returns a C-contiguous ``(k, 2)`` int64 array."""
     arr = np.asarray(pairs)
-    if (
-        arr.ndim != 2
-        or arr.shape[1] != 2
-        or not (np.issubdtype(arr.dtype, np.integer) or arr.size == 0)
-    ):
+    if arr.size == 0:
+        return np.zeros((0, 2), np.int64)
+    if arr.ndim != 2 or arr.shape[1] != 2 or not np.issubdtype(arr.dtype, np.integer):
         raise InvalidArgumentError(
             f"pairs must be an integer (k, 2) array, got {arr.dtype} {arr.shape}"
         )
-    arr = arr.astype(np.int64)
-    if (
-        arr.size
-        and (arr.min(axis=0) < 0).any()
-        or arr.size
-        and (arr[:, 0].max() >= na or arr[:, 1].max() >= nb)
-    ):
-        raise InvalidArgumentError(f"pairs index out of range (a has {na}, b has {nb} triangles)")
-    return np.ascontiguousarray(arr[:, 0]), np.ascontiguousarray(arr[:, 1])
+    arr = np.ascontiguousarray(arr, dtype=np.int64)
+    lo, hi_a, hi_b = tb.pair_bounds(arr)
+    if lo < 0 or hi_a >= na or hi_b >= nb:
+        raise InvalidArgumentError(
+            f"pairs index out of range: a has {na} and b has {nb} triangles; the pairs hold "
+            f"indices from {lo} up to {hi_a} (into a) and {hi_b} (into b)"
+        )
+    return arr

@@ -138,14 +138,29 @@ def bound_rows(a, fa, i, b, fb, eps_i, eps_b, one, band_factor, margin):
         margin[j] = low - (eps_i + eps_b[j] + band)
 
 
+@njit(**INLINE)
+def _longest_edge(v0, v1, v2):
+    x1, y1, z1 = v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2]
+    x2, y2, z2 = v2[0] - v0[0], v2[1] - v0[1], v2[2] - v0[2]
+    x3, y3, z3 = v2[0] - v1[0], v2[1] - v1[1], v2[2] - v1[2]
+    e1 = x1 * x1 + y1 * y1 + z1 * z1
+    e2 = x2 * x2 + y2 * y2 + z2 * z2
+    e3 = x3 * x3 + y3 * y3 + z3 * z3
+    return sqrt(max(e1, max(e2, e3)))
+
+
 @njit(**JIT)
-def bound_paired(a, fa, b, fb, t0, t1, eps, one, band_factor, margin):
-    """As :func:`bound_rows` for pairs (t, t) with contact distances ``eps[t]``."""
+def bound_paired(a, b, t0, t1, eps, one, band_factor, margin):
+    """As :func:`bound_rows` for pairs (t, t) with contact distances ``eps[t]``.
+
+    Needs coordinates only, so a candidate list can be culled before the
+    frames of its survivors are gathered.
+    """
     for t in range(t0, t1):
         o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
         ca, cb = centroid(a0, a1, a2, one), centroid(b0, b1, b2, one)
         low = separation_bounds(ca, cb, a0, a1, a2, b0, b1, b2, one)[1]
-        band = band_factor * (low + _extent(fa, t, one) + _extent(fb, t, one))
+        band = band_factor * (low + _longest_edge(a0, a1, a2) + _longest_edge(b0, b1, b2))
         margin[t] = low - (eps[t] + band)
 
 
@@ -182,10 +197,38 @@ def iterate_paired(a, fa, b, fb, t0, t1, iterations, one, band_factor, scratch):
 
 @njit(**JIT)
 def gather(src, idx, t0, m, dst):
-    """``dst[:, k] = src[:, idx[t0 + k]]`` for ``k < m``."""
-    for c in range(src.shape[0]):
-        for k in range(m):
-            dst[c, k] = src[c, idx[t0 + k]]
+    """``dst[:, k] = src[idx[t0 + k], :]`` for ``k < m``.
+
+    ``src (n, r)`` is the row-major copy of a SoA array, so one triangle's
+    values are contiguous (one or two cache lines instead of ``r`` lines).
+    """
+    r = src.shape[1]
+    for k in range(m):
+        i = idx[t0 + k]
+        for c in range(r):
+            dst[c, k] = src[i, c]
+
+
+@njit(**JIT)
+def pair_bounds(pairs):
+    """``(min, max of column 0, max of column 1)`` of a non-empty ``(k, 2)`` int64 array."""
+    lo, hi0, hi1 = pairs[0, 0], pairs[0, 0], pairs[0, 1]
+    for t in range(pairs.shape[0]):
+        i, j = pairs[t, 0], pairs[t, 1]
+        lo = min(lo, min(i, j))
+        hi0 = max(hi0, i)
+        hi1 = max(hi1, j)
+    return lo, hi0, hi1
+
+
+@njit(**JIT)
+def gather_coords(src, pairs, side, t0, m, dst):
+    """``dst[:, k] = src[pairs[t0 + k, side], :]``: coordinates, unrolled."""
+    for k in range(m):
+        i = pairs[t0 + k, side]
+        dst[0, k], dst[1, k], dst[2, k] = src[i, 0], src[i, 1], src[i, 2]
+        dst[3, k], dst[4, k], dst[5, k] = src[i, 3], src[i, 4], src[i, 5]
+        dst[6, k], dst[7, k], dst[8, k] = src[i, 6], src[i, 7], src[i, 8]
 
 
 @njit(**JIT)
@@ -335,11 +378,62 @@ def _resolve(
 
 
 @njit(**JIT)
+def _flush(
+    a_rm,
+    fa_rm,
+    b_rm,
+    fb_rm,
+    c,
+    mode,
+    iterations,
+    rtol,
+    one,
+    band_factor,
+    work,
+    n,
+    out_i,
+    out_j,
+    out_d,
+    out_p,
+    out_q,
+    out_s,
+    stats,
+):
+    """Gather the ``c`` queued candidates (``work`` indices gi, gj) and resolve them."""
+    ga, gfa, gb, gfb, gi, gj = work[:6]
+    gather(a_rm, gi, ZERO, c, ga)
+    gather(fa_rm, gi, ZERO, c, gfa)
+    gather(b_rm, gj, ZERO, c, gb)
+    gather(fb_rm, gj, ZERO, c, gfb)
+    return _resolve(
+        c,
+        mode,
+        iterations,
+        rtol,
+        one,
+        band_factor,
+        work,
+        n,
+        out_i,
+        out_j,
+        out_d,
+        out_p,
+        out_q,
+        out_s,
+        stats,
+    )
+
+
+@njit(**JIT)
 def all_pairs_kernel(
     a,
     fa,
     b,
     fb,
+    a_rm,
+    fa_rm,
+    b_rm,
+    fb_rm,
     eps_a,
     eps_b,
     start,
@@ -360,19 +454,21 @@ def all_pairs_kernel(
     """Contacts among all pairs ``(i, j)``, ``start ≤ i < stop``, every j (streamed).
 
     A pair is in contact when its distance is at most ``eps_a[i] + eps_b[j]``.
-    Results go to ``out_* (capacity,)`` / ``(3, capacity)``; the return value is
-    the number found, which may exceed the capacity (the host then re-runs with
-    more room). ``ITERATIVE`` mode also returns not-converged pairs (status
+    ``*_rm`` are row-major copies of the SoA arrays (for gathering). Results go
+    to ``out_* (capacity,)`` / ``(3, capacity)``; the return value is the number
+    found, which may exceed the capacity (the host then re-runs with more room).
+    ``ITERATIVE`` mode also returns not-converged pairs (status
     ``NOT_CONVERGED``: maybe in contact). Outside ``EXACT`` mode, pairs whose
-    centroid-axis bound certifies "no contact" skip the iterative kernel.
+    centroid-axis bound certifies "no contact" are dropped; the rest are queued
+    across rows and resolved a full block at a time.
     """
     nb = b.shape[1]
     n = ZERO
     work = workspace(a)
-    ga, gfa, gb, gfb, gi, gj, geps = work[:7]
+    gi, gj, geps = work[4], work[5], work[6]
     margin = np.empty(nb, a.dtype)
     dist = np.empty(nb, a.dtype)
-    cj = np.empty(nb, np.int64)
+    c = ZERO
     for i in range(start, stop):
         stats[STAT_PAIRS] += nb
         if mode == EXACT:
@@ -383,53 +479,72 @@ def all_pairs_kernel(
                     n = _record(n, i, j, d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s)
             continue
         bound_rows(a, fa, i, b, fb, eps_a[i], eps_b, one, band_factor, margin)
-        m = 0
+        kept = ZERO
         for j in range(nb):
-            cj[m] = j
-            m += margin[j] <= 0
-        stats[STAT_CULLED] += nb - m
-        for t0 in range(0, m, BLOCK):
-            k = min(BLOCK, m - t0)
-            for c in range(9):
-                ga[c, :k] = a[c, i]
-            for c in range(13):
-                gfa[c, :k] = fa[c, i]
-            gather(b, cj, t0, k, gb)
-            gather(fb, cj, t0, k, gfb)
-            for s in range(k):
-                gi[s] = i
-                gj[s] = cj[t0 + s]
-                geps[s] = eps_a[i] + eps_b[cj[t0 + s]]
-            n = _resolve(
-                k,
-                mode,
-                iterations,
-                rtol,
-                one,
-                band_factor,
-                work,
-                n,
-                out_i,
-                out_j,
-                out_d,
-                out_p,
-                out_q,
-                out_s,
-                stats,
-            )
+            if margin[j] <= 0:
+                kept += 1
+                gi[c] = i
+                gj[c] = j
+                geps[c] = eps_a[i] + eps_b[j]
+                c += 1
+                if c == BLOCK:
+                    n = _flush(
+                        a_rm,
+                        fa_rm,
+                        b_rm,
+                        fb_rm,
+                        c,
+                        mode,
+                        iterations,
+                        rtol,
+                        one,
+                        band_factor,
+                        work,
+                        n,
+                        out_i,
+                        out_j,
+                        out_d,
+                        out_p,
+                        out_q,
+                        out_s,
+                        stats,
+                    )
+                    c = ZERO
+        stats[STAT_CULLED] += nb - kept
+    if c > 0:
+        n = _flush(
+            a_rm,
+            fa_rm,
+            b_rm,
+            fb_rm,
+            c,
+            mode,
+            iterations,
+            rtol,
+            one,
+            band_factor,
+            work,
+            n,
+            out_i,
+            out_j,
+            out_d,
+            out_p,
+            out_q,
+            out_s,
+            stats,
+        )
     return n
 
 
 @njit(**JIT)
 def listed_kernel(
-    a,
-    fa,
-    b,
-    fb,
+    a_rm,
+    fa_rm,
+    b_rm,
+    fb_rm,
     eps_a,
     eps_b,
-    pair_i,
-    pair_j,
+    pairs,
     start,
     stop,
     mode,
@@ -445,41 +560,69 @@ def listed_kernel(
     out_s,
     stats,
 ):
-    """Contacts among listed pairs ``(pair_i[t], pair_j[t])``, ``start ≤ t < stop``.
+    """Contacts among listed pairs ``pairs[t] = (i, j)`` (int64), ``start ≤ t < stop``.
 
-    Same outputs and return value as :func:`all_pairs_kernel`.
+    Same outputs and return value as :func:`all_pairs_kernel`. Outside ``EXACT``
+    mode each block of pairs is culled on gathered coordinates; survivors are
+    queued and resolved a full block at a time.
     """
     n = ZERO
-    work = workspace(a)
-    ga, gfa, gb, gfb, gi, gj, geps = work[:7]
-    margin = np.empty(BLOCK, a.dtype)
+    work = workspace(a_rm)
+    gi, gj, geps = work[4], work[5], work[6]
+    ca, cb = np.empty((9, BLOCK), a_rm.dtype), np.empty((9, BLOCK), a_rm.dtype)
+    ceps = np.empty(BLOCK, a_rm.dtype)
+    margin = np.empty(BLOCK, a_rm.dtype)
+    c = ZERO
     for t0 in range(start, stop, BLOCK):
         m = min(BLOCK, stop - t0)
         stats[STAT_PAIRS] += m
-        gather(a, pair_i, t0, m, ga)
-        gather(fa, pair_i, t0, m, gfa)
-        gather(b, pair_j, t0, m, gb)
-        gather(fb, pair_j, t0, m, gfb)
         for k in range(m):
-            gi[k] = pair_i[t0 + k]
-            gj[k] = pair_j[t0 + k]
-            geps[k] = eps_a[gi[k]] + eps_b[gj[k]]
-        if mode != EXACT:
-            bound_paired(ga, gfa, gb, gfb, ZERO, m, geps, one, band_factor, margin)
-            kept = 0
-            for k in range(m):
-                if margin[k] <= 0:
-                    if kept != k:
-                        ga[:, kept] = ga[:, k]
-                        gfa[:, kept] = gfa[:, k]
-                        gb[:, kept] = gb[:, k]
-                        gfb[:, kept] = gfb[:, k]
-                        gi[kept], gj[kept], geps[kept] = gi[k], gj[k], geps[k]
-                    kept += 1
-            stats[STAT_CULLED] += m - kept
-            m = kept
-        n = _resolve(
-            m,
+            ceps[k] = eps_a[pairs[t0 + k, 0]] + eps_b[pairs[t0 + k, 1]]
+        if mode == EXACT:
+            margin[:m] = -1
+        else:
+            gather_coords(a_rm, pairs, 0, t0, m, ca)
+            gather_coords(b_rm, pairs, 1, t0, m, cb)
+            bound_paired(ca, cb, ZERO, m, ceps, one, band_factor, margin)
+        kept = ZERO
+        for k in range(m):
+            if margin[k] <= 0:
+                kept += 1
+                gi[c] = pairs[t0 + k, 0]
+                gj[c] = pairs[t0 + k, 1]
+                geps[c] = ceps[k]
+                c += 1
+                if c == BLOCK:
+                    n = _flush(
+                        a_rm,
+                        fa_rm,
+                        b_rm,
+                        fb_rm,
+                        c,
+                        mode,
+                        iterations,
+                        rtol,
+                        one,
+                        band_factor,
+                        work,
+                        n,
+                        out_i,
+                        out_j,
+                        out_d,
+                        out_p,
+                        out_q,
+                        out_s,
+                        stats,
+                    )
+                    c = ZERO
+        stats[STAT_CULLED] += m - kept
+    if c > 0:
+        n = _flush(
+            a_rm,
+            fa_rm,
+            b_rm,
+            fb_rm,
+            c,
             mode,
             iterations,
             rtol,
