@@ -99,7 +99,10 @@ class TriangleDistances:
 
 @dataclass(frozen=True)
 class TriangleContacts:
-    """Pairs within their contact distance, ordered by (index in a, index in b).
+    """Pairs within their contact distance.
+
+    All-pairs results are ordered by (index in a, index in b); listed results
+    follow the order of the given ``pairs``.
 
     pairs : (m, 2) int64 — indices into a and b
     distance : (m,) float
@@ -123,10 +126,17 @@ class TriangleContacts:
 class TriangleSet:
     """Triangles prepared for the kernels in one precision.
 
+    Each triangle's vertices are rotated (orientation kept) so that vertex 0 sits
+    opposite its longest edge, at its largest angle: there the normal and the
+    barycentric dual basis are best conditioned, which keeps needles accurate in
+    float32. Frames are computed in float64 and then rounded to ``precision``.
+    Results refer to triangles by index, so the rotation is invisible to callers.
+
     Parameters
     ----------
     triangles : (n, 3, 3) float — vertex coordinates per triangle
     precision : "float32" or "float64"
+    name : str — how error messages refer to the argument
 
     Attributes
     ----------
@@ -136,14 +146,17 @@ class TriangleSet:
         arbitrary triangles (one or two cache lines per triangle)
     """
 
-    def __init__(self, triangles: np.ndarray, precision: str = "float64") -> None:
+    def __init__(
+        self, triangles: np.ndarray, precision: str = "float64", name: str = "triangles"
+    ) -> None:
         dtype = _precision(precision)
-        tri = _as_triangles(triangles, "triangles")
+        tri = _largest_angle_first(_as_triangles(triangles, name, dtype))
         self.dtype = np.dtype(dtype)
-        self.coords = np.ascontiguousarray(tri.reshape(-1, 9).T, dtype=dtype)
-        self.frames = np.empty((13, len(tri)), dtype=dtype)
-        one, tiny = _constants(dtype)
-        tb.frames_kernel(self.coords, self.frames, one, tiny)
+        coords = np.ascontiguousarray(tri.reshape(-1, 9).T)
+        frames = np.empty((13, len(tri)))
+        tb.frames_kernel(coords, frames, 1.0, float(_constants(dtype)[1]))
+        self.coords = coords.astype(dtype)
+        self.frames = frames.astype(dtype)
         self.coords_rm = np.ascontiguousarray(self.coords.T)
         self.frames_rm = np.ascontiguousarray(self.frames.T)
 
@@ -151,15 +164,32 @@ class TriangleSet:
         return self.coords.shape[1]
 
     @classmethod
-    def of(cls, triangles: np.ndarray | TriangleSet, precision: str) -> TriangleSet:
+    def of(
+        cls, triangles: np.ndarray | TriangleSet, precision: str, name: str = "triangles"
+    ) -> TriangleSet:
         """``triangles`` itself if already prepared in ``precision``, else a new set."""
         if isinstance(triangles, TriangleSet):
             if triangles.dtype != np.dtype(_precision(precision)):
                 raise InvalidArgumentError(
-                    f"TriangleSet is {triangles.dtype.name} but precision={precision!r}"
+                    f"{name} is a {triangles.dtype.name} TriangleSet but precision={precision!r}"
                 )
             return triangles
-        return cls(triangles, precision)
+        return cls(triangles, precision, name)
+
+
+def _largest_angle_first(tri: np.ndarray) -> np.ndarray:
+    """Rotate each triangle's vertices so that vertex 0 is opposite its longest edge."""
+    opposite = np.stack(
+        [
+            np.einsum("ij,ij->i", tri[:, 2] - tri[:, 1], tri[:, 2] - tri[:, 1]),
+            np.einsum("ij,ij->i", tri[:, 0] - tri[:, 2], tri[:, 0] - tri[:, 2]),
+            np.einsum("ij,ij->i", tri[:, 1] - tri[:, 0], tri[:, 1] - tri[:, 0]),
+        ],
+        axis=1,
+    )
+    first = np.argmax(opposite, axis=1)
+    order = (first[:, None] + np.arange(3)[None, :]) % 3
+    return np.take_along_axis(tri, order[:, :, None], axis=1)
 
 
 def triangle_distances(
@@ -193,7 +223,7 @@ def triangle_distances(
     """
     mode = _mode(kernel)
     dtype = _precision(precision)
-    sa, sb = TriangleSet.of(a, precision), TriangleSet.of(b, precision)
+    sa, sb = TriangleSet.of(a, precision, "a"), TriangleSet.of(b, precision, "b")
     n = len(sa)
     if len(sb) != n:
         raise InvalidArgumentError(f"a and b must pair up: {n} and {len(sb)} triangles")
@@ -269,7 +299,7 @@ def triangle_contacts(
     """
     mode = _mode(kernel)
     dtype = _precision(precision)
-    sa, sb = TriangleSet.of(a, precision), TriangleSet.of(b, precision)
+    sa, sb = TriangleSet.of(a, precision, "a"), TriangleSet.of(b, precision, "b")
     eps_a = _epsilon(epsilon_a, len(sa), dtype, "epsilon_a")
     eps_b = _epsilon(epsilon_b, len(sb), dtype, "epsilon_b")
     iterations, rtol = _iteration_args(iterations, rtol)
@@ -423,36 +453,69 @@ def _precision(precision: str):
         ) from None
 
 
-def _as_triangles(x, name: str) -> np.ndarray:
+def _as_triangles(x, name: str, dtype=np.float64) -> np.ndarray:
+    """``x`` as a finite (n, 3, 3) float64 array whose coordinates ``dtype`` can square."""
+    if np.iscomplexobj(x):
+        raise InvalidArgumentError(f"{name} must be real, got complex values")
     try:
         arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidArgumentError(f"{name} must be a numeric (n, 3, 3) array: {exc}") from None
     if arr.ndim != 3 or arr.shape[1:] != (3, 3):
         raise InvalidArgumentError(f"{name} must have shape (n, 3, 3), got {arr.shape}")
-    if not np.isfinite(arr).all():
-        bad = int(np.flatnonzero(~np.isfinite(arr).reshape(len(arr), -1).all(axis=1))[0])
+    finite = np.isfinite(arr).reshape(len(arr), 9).all(axis=1)
+    if not finite.all():
+        bad = int(np.flatnonzero(~finite)[0])
         raise InvalidArgumentError(f"{name} has a non-finite coordinate in triangle {bad}")
+    limit = _coordinate_limit(dtype)
+    if arr.size and np.abs(arr).max() > limit:
+        bad = int(np.flatnonzero(np.abs(arr).reshape(len(arr), 9).max(axis=1) > limit)[0])
+        raise InvalidArgumentError(
+            f"{name} has a coordinate beyond ±{limit:.3g} in triangle {bad}: squared "
+            f"distances would overflow {np.dtype(dtype).name}"
+        )
     return arr
 
 
+def _coordinate_limit(dtype) -> float:
+    """Largest coordinate magnitude whose squared differences stay finite in ``dtype``."""
+    return float(np.sqrt(np.finfo(dtype).max) * 1e-4)
+
+
 def _epsilon(eps, n: int, dtype, name: str) -> np.ndarray:
-    arr = np.asarray(eps, dtype=np.float64)
+    if np.iscomplexobj(eps):
+        raise InvalidArgumentError(f"{name} must be real, got complex values")
+    try:
+        arr = np.asarray(eps, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(
+            f"{name} must be a non-negative number or a ({n},) array, got {eps!r}"
+        ) from None
     if arr.ndim == 0:
         arr = np.full(n, float(arr))
     if arr.shape != (n,):
         raise InvalidArgumentError(f"{name} must be a scalar or shape ({n},), got {arr.shape}")
     if not (np.isfinite(arr).all() and (arr >= 0).all()):
         raise InvalidArgumentError(f"{name} must be finite and non-negative")
+    if arr.size and arr.max() > _coordinate_limit(dtype):
+        raise InvalidArgumentError(f"{name} is too large for {np.dtype(dtype).name}")
     return arr.astype(dtype)
 
 
 def _iteration_args(iterations, rtol) -> tuple[int, float]:
-    if not isinstance(iterations, int | np.integer) or not 1 <= iterations <= 64:
+    if (
+        isinstance(iterations, bool | np.bool_)
+        or not isinstance(iterations, int | np.integer)
+        or not 1 <= iterations <= 64
+    ):
         raise InvalidArgumentError(f"iterations must be an integer in [1, 64], got {iterations!r}")
-    if not (np.isfinite(rtol) and rtol >= 0):
+    try:
+        value = float(rtol)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if isinstance(rtol, bool | np.bool_) or not (np.isfinite(value) and value >= 0):
         raise InvalidArgumentError(f"rtol must be finite and non-negative, got {rtol!r}")
-    return int(iterations), float(rtol)
+    return int(iterations), value
 
 
 def _pairs(pairs, na: int, nb: int) -> np.ndarray:
@@ -463,6 +526,10 @@ def _pairs(pairs, na: int, nb: int) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 2 or not np.issubdtype(arr.dtype, np.integer):
         raise InvalidArgumentError(
             f"pairs must be an integer (k, 2) array, got {arr.dtype} {arr.shape}"
+        )
+    if np.issubdtype(arr.dtype, np.unsignedinteger) and arr.max() > np.iinfo(np.int64).max:
+        raise InvalidArgumentError(
+            f"pairs index out of range: a has {na} and b has {nb} triangles, got {arr.max()}"
         )
     arr = np.ascontiguousarray(arr, dtype=np.int64)
     lo, hi_a, hi_b = tb.pair_bounds(arr)

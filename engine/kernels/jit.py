@@ -16,12 +16,38 @@ LLVM vectorises a pair loop only after proving (with runtime checks) that its
 stores do not overlap its ~44 input rows; its default limits on such checks
 (8 and 100) are far below that, so they are raised here, process-wide, before
 anything is compiled. The checks run once per loop, not per pair.
+
+Numba's on-disk cache is keyed on the timestamp of the file that defines a
+kernel, but these kernels inline helpers from sibling files: an edit there
+would leave stale machine code in use. The cache directory therefore carries
+a hash of the whole ``engine/kernels`` source (``$NUMBA_CACHE_DIR``, else
+``~/.cache/mrdem/numba``, then ``kernels-<hash>``).
 """
 
+import hashlib
+import os
+from pathlib import Path
+
 import llvmlite.binding as llvm
+import numba
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
+
+
+def _source_hash() -> str:
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+KERNEL_SOURCE_HASH = _source_hash()
+_cache_base = numba.config.CACHE_DIR or os.path.join(
+    os.path.expanduser("~"), ".cache", "mrdem", "numba"
+)
+numba.config.CACHE_DIR = os.path.join(_cache_base, f"kernels-{KERNEL_SOURCE_HASH}")
 
 llvm.set_option("mrdem", "--runtime-memory-check-threshold=4096")
 llvm.set_option("mrdem", "--memory-check-merge-threshold=4096")

@@ -15,9 +15,11 @@ distance and a closest pair of points as the minimum over
 
 Barycentric coordinates use the triangle's dual basis (``g1, g2`` with
 ``g_i · e_j = δ_ij``), i.e. the inverse of its 2×2 Gram matrix, built once per
-triangle by :func:`triangle_frame`. Slivers whose ``sin²`` of the angle at
-vertex 0 is below ``tiny`` (the host passes ``64·ulp``) get no face candidates;
-their edges carry the distance. All inputs are in a pair-local frame.
+triangle by :func:`triangle_frame` (the host builds frames in float64 and puts
+each triangle's largest angle at vertex 0, where they are best conditioned).
+Slivers whose ``sin²`` of that angle is below ``tiny`` (the host passes ``64·ulp``
+of the kernel's precision) get no face candidates; their edges carry the
+distance, within the sliver's width. All inputs are in a pair-local frame.
 
 Helpers here are written as flat scalar code: they are inlined at Numba-IR
 level (see :mod:`engine.kernels.jit`), whose cost grows quickly with
@@ -41,6 +43,7 @@ def triangle_frame(v0, v1, v2, one, tiny):
     inverse squared lengths of the edges ``v0→v1, v1→v2, v0→v2``; ``valid`` False
     for slivers (no reliable plane).
     """
+    zero = one - one
     e1x, e1y, e1z = v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2]
     e2x, e2y, e2z = v2[0] - v0[0], v2[1] - v0[1], v2[2] - v0[2]
     e3x, e3y, e3z = v2[0] - v1[0], v2[1] - v1[1], v2[2] - v1[2]
@@ -63,7 +66,13 @@ def triangle_frame(v0, v1, v2, one, tiny):
         (d00 * e2z - d01 * e1z) * inv,
     )
     s = one / sqrt(den)
-    inv_len2 = (one / d00, one / (e3x * e3x + e3y * e3y + e3z * e3z), one / d11)
+    d22 = e3x * e3x + e3y * e3y + e3z * e3z
+    # 0 for a zero-length edge: its closest point is then its start.
+    inv_len2 = (
+        select(d00 > zero, one / select(d00 > zero, d00, one), zero),
+        select(d22 > zero, one / select(d22 > zero, d22, one), zero),
+        select(d11 > zero, one / select(d11 > zero, d11, one), zero),
+    )
     return (nx * s, ny * s, nz * s), g1, g2, inv_len2, valid
 
 
@@ -72,7 +81,10 @@ def segment_segment(p0, d1, q0, d2, one):
     """Closest points of segments ``p0 + s·d1`` and ``q0 + t·d2``, s, t in [0, 1].
 
     Returns ``(squared distance, point on first, point on second)``.
-    Branch-free form of Ericson §5.1.9, robust for parallel segments.
+    Branch-free form of Ericson §5.1.9, including its zero-length cases. The
+    denominator ``a·e − b²`` and its numerator are evaluated as ``|d1 × d2|²`` and
+    ``(d1 × d2)·(d2 × r)`` (Lagrange's identity): the difference of products is
+    pure rounding noise for nearly parallel segments.
     """
     zero = one - one
     rx, ry, rz = p0[0] - q0[0], p0[1] - q0[1], p0[2] - q0[2]
@@ -81,16 +93,24 @@ def segment_segment(p0, d1, q0, d2, one):
     b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
     c = d1[0] * rx + d1[1] * ry + d1[2] * rz
     f = d2[0] * rx + d2[1] * ry + d2[2] * rz
-    den = a * e - b * b
-    ia = one / a
-    s = select(den > zero, (b * f - c * e) / select(den > zero, den, one), zero)
-    s = min(max(s, zero), one)
-    t = (b * s + f) / e
+    nx = d1[1] * d2[2] - d1[2] * d2[1]
+    ny = d1[2] * d2[0] - d1[0] * d2[2]
+    nz = d1[0] * d2[1] - d1[1] * d2[0]
+    mx = d2[1] * rz - d2[2] * ry
+    my = d2[2] * rx - d2[0] * rz
+    mz = d2[0] * ry - d2[1] * rx
+    den = nx * nx + ny * ny + nz * nz
+    num = nx * mx + ny * my + nz * mz
+    ia = one / select(a > zero, a, one)
+    ie = one / select(e > zero, e, one)
     s_lo = min(max(-c * ia, zero), one)
     s_hi = min(max((b - c) * ia, zero), one)
+    s = select(den > zero, min(max(num / select(den > zero, den, one), zero), one), zero)
+    t = (b * s + f) * ie
     s = select(t < zero, s_lo, s)
     s = select(t > one, s_hi, s)
     t = min(max(t, zero), one)
+    s = select(e > zero, s, s_lo)
     p = (p0[0] + s * d1[0], p0[1] + s * d1[1], p0[2] + s * d1[2])
     q = (q0[0] + t * d2[0], q0[1] + t * d2[1], q0[2] + t * d2[2])
     wx, wy, wz = p[0] - q[0], p[1] - q[1], p[2] - q[2]
@@ -128,8 +148,10 @@ def _crossing(v, w, hv, hw, valid, best, p, q, one):
     """Candidate: segment ``v -> w`` crossing the other face (distance 0)."""
     zero = one - one
     dh = hv[0] - hw[0]
-    crosses = valid & (hv[0] * hw[0] <= zero) & (dh != zero)
-    t = hv[0] / select(dh != zero, dh, one)
+    # Signs, not the product hv·hw: the product underflows to 0 for tiny heights.
+    opposite = ((hv[0] <= zero) & (hw[0] >= zero)) | ((hv[0] >= zero) & (hw[0] <= zero))
+    crosses = valid & opposite & (dh != zero)
+    t = min(max(hv[0] / select(dh != zero, dh, one), zero), one)
     u = hv[1] + t * (hw[1] - hv[1])
     s = hv[2] + t * (hw[2] - hv[2])
     x = (v[0] + t * (w[0] - v[0]), v[1] + t * (w[1] - v[1]), v[2] + t * (w[2] - v[2]))
