@@ -305,59 +305,47 @@ def triangle_contacts(
     iterations, rtol = _iteration_args(iterations, rtol)
     one, _ = _constants(dtype)
     band = dtype(_BAND_ULPS * np.finfo(dtype).eps)
-    common = (mode, iterations, dtype(rtol), one, band)
+    params = (mode, np.int64(iterations), dtype(rtol), one, band)
+    rm = (sa.coords_rm, sa.frames_rm, sb.coords_rm, sb.frames_rm)
 
     if pairs is None:
         n_outer, work = len(sa), len(sa) * len(sb)
 
-        def call(start, stop, out):
+        def call(start, stop, out, stats):
             return tb.all_pairs_kernel(
                 sa.coords,
                 sa.frames,
                 sb.coords,
                 sb.frames,
-                sa.coords_rm,
-                sa.frames_rm,
-                sb.coords_rm,
-                sb.frames_rm,
+                rm,
                 eps_a,
                 eps_b,
                 start,
                 stop,
-                *common,
-                *out,
+                params,
+                out,
+                stats,
             )
     else:
         pair_array = _pairs(pairs, len(sa), len(sb))
         n_outer = work = len(pair_array)
 
-        def call(start, stop, out):
-            return tb.listed_kernel(
-                sa.coords_rm,
-                sa.frames_rm,
-                sb.coords_rm,
-                sb.frames_rm,
-                eps_a,
-                eps_b,
-                pair_array,
-                start,
-                stop,
-                *common,
-                *out,
-            )
+        def call(start, stop, out, stats):
+            return tb.listed_kernel(rm, eps_a, eps_b, pair_array, start, stop, params, out, stats)
 
     def run(start: int, stop: int):
         capacity = 1024 + 8 * (stop - start)
-        while True:
+        while True:  # count, allocate, fill: a re-run only when the first guess was short
             out = _contact_buffers(capacity, dtype)
-            count = call(start, stop, out)
+            stats = np.zeros(tb.N_STATS, np.int64)
+            count = call(start, stop, out, stats)
             if count <= capacity:
-                return out, count
+                return out, count, stats
             capacity = count
 
     parts = _map_chunks(run, n_outer, work, threads)
-    stats = sum((o[-1] for o, _ in parts), np.zeros(tb.N_STATS, np.int64))
-    cat = [np.concatenate([o[k][..., :c] for o, c in parts], axis=-1) for k in range(6)]
+    stats = sum((s for _, _, s in parts), np.zeros(tb.N_STATS, np.int64))
+    cat = [np.concatenate([o[k][..., :c] for o, c, _ in parts], axis=-1) for k in range(6)]
     return TriangleContacts(
         pairs=np.stack([cat[0], cat[1]], axis=1),
         distance=cat[2],
@@ -426,7 +414,6 @@ def _contact_buffers(capacity: int, dtype) -> tuple:
         np.empty((3, capacity), dtype),
         np.empty((3, capacity), dtype),
         np.empty(capacity, np.int8),
-        np.zeros(tb.N_STATS, np.int64),
     )
 
 

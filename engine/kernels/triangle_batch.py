@@ -293,8 +293,13 @@ def paired_kernel(
 
 
 @njit(**JIT)
-def _record(n, i, j, d, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s):
-    """Append one result if there is room; always return the new count."""
+def _record(n, i, j, d, p, q, st, out):
+    """Append one result to ``out`` if there is room; always return the new count.
+
+    ``out = (i (cap,), j (cap,), distance (cap,), point_a (3, cap), point_b (3, cap),
+    status (cap,))``.
+    """
+    out_i, out_j, out_d, out_p, out_q, out_s = out
     if n < out_i.shape[0]:
         out_i[n] = i
         out_j[n] = j
@@ -324,37 +329,21 @@ def workspace(a):
 
 
 @njit(**JIT)
-def _resolve(
-    m,
-    mode,
-    iterations,
-    rtol,
-    one,
-    band_factor,
-    work,
-    n,
-    out_i,
-    out_j,
-    out_d,
-    out_p,
-    out_q,
-    out_s,
-    stats,
-):
+def _resolve(m, params, work, n, out, stats):
     """Contacts among the ``m ≤ BLOCK`` pairs gathered in ``work``; returns the new count.
 
-    ``EXACT``: the exact kernel on all. Otherwise the iterative kernel, and in
-    ``HYBRID`` mode the exact kernel on its not-converged pairs.
+    ``params = (mode, iterations, rtol, one, band_factor)``. ``EXACT``: the exact
+    kernel on all. Otherwise the iterative kernel, and in ``HYBRID`` mode the
+    exact kernel on its not-converged pairs.
     """
+    mode, iterations, rtol, one, band_factor = params
     ga, gfa, gb, gfb, gi, gj, geps, scratch, dist = work
     if mode == EXACT:
         exact_paired(ga, gfa, gb, gfb, ZERO, m, one, dist)
         for k in range(m):
             if dist[k] <= geps[k]:
                 d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
-                n = _record(
-                    n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
-                )
+                n = _record(n, gi[k], gj[k], d, p, q, CONTACT, out)
         return n
     iterate_paired(ga, gfa, gb, gfb, ZERO, m, iterations, one, band_factor, scratch)
     stats[STAT_ITERATIVE] += m
@@ -366,102 +355,44 @@ def _resolve(
             stats[STAT_FALLBACKS] += 1
             d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
             if d <= eps:
-                n = _record(
-                    n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
-                )
+                n = _record(n, gi[k], gj[k], d, p, q, CONTACT, out)
         elif st != NO_CONTACT:
             o = (ga[0, k], ga[1, k], ga[2, k])
             p = (scratch[0, k] + o[0], scratch[1, k] + o[1], scratch[2, k] + o[2])
             q = (scratch[3, k] + o[0], scratch[4, k] + o[1], scratch[5, k] + o[2])
-            n = _record(n, gi[k], gj[k], upper, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s)
+            n = _record(n, gi[k], gj[k], upper, p, q, st, out)
     return n
 
 
 @njit(**JIT)
-def _flush(
-    a_rm,
-    fa_rm,
-    b_rm,
-    fb_rm,
-    c,
-    mode,
-    iterations,
-    rtol,
-    one,
-    band_factor,
-    work,
-    n,
-    out_i,
-    out_j,
-    out_d,
-    out_p,
-    out_q,
-    out_s,
-    stats,
-):
-    """Gather the ``c`` queued candidates (``work`` indices gi, gj) and resolve them."""
+def _flush(rm, c, params, work, n, out, stats):
+    """Gather the ``c`` queued candidates (``work`` indices gi, gj) and resolve them.
+
+    ``rm = (a, frames of a, b, frames of b)`` as row-major arrays.
+    """
+    a_rm, fa_rm, b_rm, fb_rm = rm
     ga, gfa, gb, gfb, gi, gj = work[:6]
     gather(a_rm, gi, ZERO, c, ga)
     gather(fa_rm, gi, ZERO, c, gfa)
     gather(b_rm, gj, ZERO, c, gb)
     gather(fb_rm, gj, ZERO, c, gfb)
-    return _resolve(
-        c,
-        mode,
-        iterations,
-        rtol,
-        one,
-        band_factor,
-        work,
-        n,
-        out_i,
-        out_j,
-        out_d,
-        out_p,
-        out_q,
-        out_s,
-        stats,
-    )
+    return _resolve(c, params, work, n, out, stats)
 
 
 @njit(**JIT)
-def all_pairs_kernel(
-    a,
-    fa,
-    b,
-    fb,
-    a_rm,
-    fa_rm,
-    b_rm,
-    fb_rm,
-    eps_a,
-    eps_b,
-    start,
-    stop,
-    mode,
-    iterations,
-    rtol,
-    one,
-    band_factor,
-    out_i,
-    out_j,
-    out_d,
-    out_p,
-    out_q,
-    out_s,
-    stats,
-):
+def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, stats):
     """Contacts among all pairs ``(i, j)``, ``start ≤ i < stop``, every j (streamed).
 
     A pair is in contact when its distance is at most ``eps_a[i] + eps_b[j]``.
-    ``*_rm`` are row-major copies of the SoA arrays (for gathering). Results go
-    to ``out_* (capacity,)`` / ``(3, capacity)``; the return value is the number
-    found, which may exceed the capacity (the host then re-runs with more room).
-    ``ITERATIVE`` mode also returns not-converged pairs (status
+    ``rm`` holds row-major copies of (a, fa, b, fb) for gathering; ``params`` and
+    ``out`` are as in :func:`_resolve` and :func:`_record`. Returns the number of
+    results, which may exceed the capacity of ``out`` (the host then re-runs with
+    more room). ``ITERATIVE`` mode also returns not-converged pairs (status
     ``NOT_CONVERGED``: maybe in contact). Outside ``EXACT`` mode, pairs whose
     centroid-axis bound certifies "no contact" are dropped; the rest are queued
     across rows and resolved a full block at a time.
     """
+    mode, one, band_factor = params[0], params[3], params[4]
     nb = b.shape[1]
     n = ZERO
     work = workspace(a)
@@ -476,96 +407,34 @@ def all_pairs_kernel(
             for j in range(nb):
                 if dist[j] <= eps_a[i] + eps_b[j]:
                     d, p, q = exact_point(a, fa, i, b, fb, j, one)
-                    n = _record(n, i, j, d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s)
+                    n = _record(n, i, j, d, p, q, CONTACT, out)
             continue
         bound_rows(a, fa, i, b, fb, eps_a[i], eps_b, one, band_factor, margin)
         kept = ZERO
         for j in range(nb):
             if margin[j] <= 0:
                 kept += 1
-                gi[c] = i
-                gj[c] = j
-                geps[c] = eps_a[i] + eps_b[j]
+                gi[c], gj[c], geps[c] = i, j, eps_a[i] + eps_b[j]
                 c += 1
                 if c == BLOCK:
-                    n = _flush(
-                        a_rm,
-                        fa_rm,
-                        b_rm,
-                        fb_rm,
-                        c,
-                        mode,
-                        iterations,
-                        rtol,
-                        one,
-                        band_factor,
-                        work,
-                        n,
-                        out_i,
-                        out_j,
-                        out_d,
-                        out_p,
-                        out_q,
-                        out_s,
-                        stats,
-                    )
+                    n = _flush(rm, c, params, work, n, out, stats)
                     c = ZERO
         stats[STAT_CULLED] += nb - kept
     if c > 0:
-        n = _flush(
-            a_rm,
-            fa_rm,
-            b_rm,
-            fb_rm,
-            c,
-            mode,
-            iterations,
-            rtol,
-            one,
-            band_factor,
-            work,
-            n,
-            out_i,
-            out_j,
-            out_d,
-            out_p,
-            out_q,
-            out_s,
-            stats,
-        )
+        n = _flush(rm, c, params, work, n, out, stats)
     return n
 
 
 @njit(**JIT)
-def listed_kernel(
-    a_rm,
-    fa_rm,
-    b_rm,
-    fb_rm,
-    eps_a,
-    eps_b,
-    pairs,
-    start,
-    stop,
-    mode,
-    iterations,
-    rtol,
-    one,
-    band_factor,
-    out_i,
-    out_j,
-    out_d,
-    out_p,
-    out_q,
-    out_s,
-    stats,
-):
+def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, stats):
     """Contacts among listed pairs ``pairs[t] = (i, j)`` (int64), ``start ≤ t < stop``.
 
-    Same outputs and return value as :func:`all_pairs_kernel`. Outside ``EXACT``
-    mode each block of pairs is culled on gathered coordinates; survivors are
-    queued and resolved a full block at a time.
+    Same arguments and return value as :func:`all_pairs_kernel`. Outside
+    ``EXACT`` mode each block of pairs is culled on gathered coordinates;
+    survivors are queued and resolved a full block at a time.
     """
+    a_rm, b_rm = rm[0], rm[2]
+    mode, one, band_factor = params[0], params[3], params[4]
     n = ZERO
     work = workspace(a_rm)
     gi, gj, geps = work[4], work[5], work[6]
@@ -588,54 +457,12 @@ def listed_kernel(
         for k in range(m):
             if margin[k] <= 0:
                 kept += 1
-                gi[c] = pairs[t0 + k, 0]
-                gj[c] = pairs[t0 + k, 1]
-                geps[c] = ceps[k]
+                gi[c], gj[c], geps[c] = pairs[t0 + k, 0], pairs[t0 + k, 1], ceps[k]
                 c += 1
                 if c == BLOCK:
-                    n = _flush(
-                        a_rm,
-                        fa_rm,
-                        b_rm,
-                        fb_rm,
-                        c,
-                        mode,
-                        iterations,
-                        rtol,
-                        one,
-                        band_factor,
-                        work,
-                        n,
-                        out_i,
-                        out_j,
-                        out_d,
-                        out_p,
-                        out_q,
-                        out_s,
-                        stats,
-                    )
+                    n = _flush(rm, c, params, work, n, out, stats)
                     c = ZERO
         stats[STAT_CULLED] += m - kept
     if c > 0:
-        n = _flush(
-            a_rm,
-            fa_rm,
-            b_rm,
-            fb_rm,
-            c,
-            mode,
-            iterations,
-            rtol,
-            one,
-            band_factor,
-            work,
-            n,
-            out_i,
-            out_j,
-            out_d,
-            out_p,
-            out_q,
-            out_s,
-            stats,
-        )
+        n = _flush(rm, c, params, work, n, out, stats)
     return n
