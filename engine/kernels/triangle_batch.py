@@ -90,16 +90,17 @@ def _extent(f, i, one):
 
 
 @njit(**JIT)
-def exact_paired(a, fa, b, fb, t0, t1, one, dist):
-    """Exact distance ``dist[t]`` of pairs (t, t), ``t0 ≤ t < t1``.
+def exact_paired(a, fa, b, fb, m, one, dist):
+    """Exact distance ``dist[t]`` of pairs (t, t), ``0 ≤ t < m``.
 
     Distances only: with point outputs too, LLVM's runtime overlap checks send
     the loop down its scalar path (10× slower). Closest points come from
     :func:`exact_point` for the pairs that need them. (The loop bodies of these
     kernels repeat a few lines on purpose: in a shared inlined helper that takes
-    the arrays, the loop stops vectorising.)
+    the arrays, the loop stops vectorising. Block kernels start at 0: with a
+    run-time start the vectorised loop ran up to 5× slower.)
     """
-    for t in range(t0, t1):
+    for t in range(m):
         o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
         dist[t] = sqrt(exact_pair(a0, a1, a2, _frame(fa, t), b0, b1, b2, _frame(fb, t), one)[0])
 
@@ -150,13 +151,13 @@ def _longest_edge(v0, v1, v2):
 
 
 @njit(**JIT)
-def bound_paired(a, b, t0, t1, eps, one, band_factor, margin):
+def bound_paired(a, b, m, eps, one, band_factor, margin):
     """As :func:`bound_rows` for pairs (t, t) with contact distances ``eps[t]``.
 
     Needs coordinates only, so a candidate list can be culled before the
     frames of its survivors are gathered.
     """
-    for t in range(t0, t1):
+    for t in range(m):
         o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
         ca, cb = centroid(a0, a1, a2, one), centroid(b0, b1, b2, one)
         low = separation_bounds(ca, cb, a0, a1, a2, b0, b1, b2, one)[1]
@@ -165,27 +166,27 @@ def bound_paired(a, b, t0, t1, eps, one, band_factor, margin):
 
 
 @njit(**JIT)
-def iterate_paired(a, fa, b, fb, t0, t1, iterations, one, band_factor, scratch):
-    """Iterative kernel on pairs (t, t), ``t0 ≤ t < t1 ≤ t0 + BLOCK``.
+def iterate_paired(a, fa, b, fb, m, iterations, one, band_factor, scratch):
+    """Iterative kernel on pairs (t, t), ``0 ≤ t < m ≤ BLOCK``.
 
-    Writes to column ``t - t0`` of ``scratch (9, BLOCK)``: p (rows 0–2) and q
+    Writes to column ``t`` of ``scratch (9, BLOCK)``: p (rows 0–2) and q
     (3–5) in the pair-local frame, the certified upper and lower bounds (6, 7)
     and the rounding band (8).
     """
-    for t in range(t0, t1):
+    for t in range(m):
         o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
-        k = t - t0
+        k = t
         scratch[3, k], scratch[4, k], scratch[5, k] = centroid(b0, b1, b2, one)
     for _ in range(iterations):
-        for t in range(t0, t1):
-            k = t - t0
+        for t in range(m):
+            k = t
             o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
             q = (scratch[3, k], scratch[4, k], scratch[5, k])
             p, q = sweep(a0, a1, a2, _frame(fa, t), b0, b1, b2, _frame(fb, t), q, one)
             scratch[0, k], scratch[1, k], scratch[2, k] = p
             scratch[3, k], scratch[4, k], scratch[5, k] = q
-    for t in range(t0, t1):
-        k = t - t0
+    for t in range(m):
+        k = t
         o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
         p = (scratch[0, k], scratch[1, k], scratch[2, k])
         q = (scratch[3, k], scratch[4, k], scratch[5, k])
@@ -268,11 +269,17 @@ def paired_kernel(
             point_a[0, t], point_a[1, t], point_a[2, t] = p
             point_b[0, t], point_b[1, t], point_b[2, t] = q
         return
+    ga, gfa, gb, gfb = workspace(a)[:4]
     scratch = np.empty((9, BLOCK), a.dtype)
     for t0 in range(start, stop, BLOCK):
         t1 = min(t0 + BLOCK, stop)
-        iterate_paired(a, fa, b, fb, t0, t1, iterations, one, band_factor, scratch)
-        stats[STAT_ITERATIVE] += t1 - t0
+        m = t1 - t0
+        ga[:, :m] = a[:, t0:t1]
+        gfa[:, :m] = fa[:, t0:t1]
+        gb[:, :m] = b[:, t0:t1]
+        gfb[:, :m] = fb[:, t0:t1]
+        iterate_paired(ga, gfa, gb, gfb, m, iterations, one, band_factor, scratch)
+        stats[STAT_ITERATIVE] += m
         for t in range(t0, t1):
             k = t - t0
             upper, low, band = scratch[6, k], scratch[7, k], scratch[8, k]
@@ -339,13 +346,13 @@ def _resolve(m, params, work, n, out, stats):
     mode, iterations, rtol, one, band_factor = params
     ga, gfa, gb, gfb, gi, gj, geps, scratch, dist = work
     if mode == EXACT:
-        exact_paired(ga, gfa, gb, gfb, ZERO, m, one, dist)
+        exact_paired(ga, gfa, gb, gfb, m, one, dist)
         for k in range(m):
             if dist[k] <= geps[k]:
                 d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
                 n = _record(n, gi[k], gj[k], d, p, q, CONTACT, out)
         return n
-    iterate_paired(ga, gfa, gb, gfb, ZERO, m, iterations, one, band_factor, scratch)
+    iterate_paired(ga, gfa, gb, gfb, m, iterations, one, band_factor, scratch)
     stats[STAT_ITERATIVE] += m
     for k in range(m):
         eps = geps[k]
@@ -452,7 +459,7 @@ def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, stats):
         else:
             gather_coords(a_rm, pairs, 0, t0, m, ca)
             gather_coords(b_rm, pairs, 1, t0, m, cb)
-            bound_paired(ca, cb, ZERO, m, ceps, one, band_factor, margin)
+            bound_paired(ca, cb, m, ceps, one, band_factor, margin)
         kept = ZERO
         for k in range(m):
             if margin[k] <= 0:
