@@ -211,6 +211,15 @@ def gather(src, idx, t0, m, dst):
 
 
 @njit(**JIT)
+def copy_columns(src, t0, m, dst):
+    """``dst[:, k] = src[:, t0 + k]`` for ``k < m`` (an explicit loop compiles faster
+    than Numba's generic slice assignment)."""
+    for c in range(src.shape[0]):
+        for k in range(m):
+            dst[c, k] = src[c, t0 + k]
+
+
+@njit(**JIT)
 def pair_bounds(pairs):
     """``(min, max of column 0, max of column 1)`` of a non-empty ``(k, 2)`` int64 array."""
     lo, hi0, hi1 = pairs[0, 0], pairs[0, 0], pairs[0, 1]
@@ -274,10 +283,10 @@ def paired_kernel(
     for t0 in range(start, stop, BLOCK):
         t1 = min(t0 + BLOCK, stop)
         m = t1 - t0
-        ga[:, :m] = a[:, t0:t1]
-        gfa[:, :m] = fa[:, t0:t1]
-        gb[:, :m] = b[:, t0:t1]
-        gfb[:, :m] = fb[:, t0:t1]
+        copy_columns(a, t0, m, ga)
+        copy_columns(fa, t0, m, gfa)
+        copy_columns(b, t0, m, gb)
+        copy_columns(fb, t0, m, gfb)
         iterate_paired(ga, gfa, gb, gfb, m, iterations, one, band_factor, scratch)
         stats[STAT_ITERATIVE] += m
         for t in range(t0, t1):
@@ -455,7 +464,8 @@ def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, stats):
         for k in range(m):
             ceps[k] = eps_a[pairs[t0 + k, 0]] + eps_b[pairs[t0 + k, 1]]
         if mode == EXACT:
-            margin[:m] = -1
+            for k in range(m):
+                margin[k] = -one
         else:
             gather_coords(a_rm, pairs, 0, t0, m, ca)
             gather_coords(b_rm, pairs, 1, t0, m, cb)
