@@ -143,8 +143,9 @@ class TriangleSet:
     Attributes
     ----------
     coords : (9, n) — rows x0 y0 z0 x1 y1 z1 x2 y2 z2
-    frames : (13, n) — per-triangle normal, dual basis, inverse edge lengths, validity
-    coords_rm, frames_rm : (n, 9), (n, 13) — row-major copies, for gathering
+    frames : (14, n) — per-triangle normal, dual basis, inverse edge lengths, validity,
+        conditioning κ = 1/sin θ (θ the angle at vertex 0)
+    coords_rm, frames_rm : (n, 9), (n, 14) — row-major copies, for gathering
         arbitrary triangles (one or two cache lines per triangle)
     """
 
@@ -155,7 +156,7 @@ class TriangleSet:
         tri = _largest_angle_first(_as_triangles(triangles, name, dtype))
         self.dtype = np.dtype(dtype)
         coords = np.ascontiguousarray(tri.reshape(-1, 9).T)
-        frames = np.empty((13, len(tri)))
+        frames = np.empty((14, len(tri)))
         tb.frames_kernel(coords, frames, 1.0, float(_constants(dtype)[1]))
         self.coords = coords.astype(dtype)
         self.frames = frames.astype(dtype)
@@ -231,8 +232,7 @@ def triangle_distances(
         raise InvalidArgumentError(f"a and b must pair up: {n} and {len(sb)} triangles")
     eps = _epsilon(epsilon, n, dtype, "epsilon")
     iterations, rtol = _iteration_args(iterations, rtol)
-    one, _ = _constants(dtype)
-    band = dtype(_BAND_ULPS * np.finfo(dtype).eps)
+    one, band = _constants(dtype)
     distance = np.empty(n, dtype)
     lower = np.empty(n, dtype)
     point_a = np.empty((3, n), dtype)
@@ -305,8 +305,7 @@ def triangle_contacts(
     eps_a = _epsilon(epsilon_a, len(sa), dtype, "epsilon_a")
     eps_b = _epsilon(epsilon_b, len(sb), dtype, "epsilon_b")
     iterations, rtol = _iteration_args(iterations, rtol)
-    one, _ = _constants(dtype)
-    band = dtype(_BAND_ULPS * np.finfo(dtype).eps)
+    one, band = _constants(dtype)
     params = (mode, np.int64(iterations), dtype(rtol), one, band)
     rm = (sa.coords_rm, sa.frames_rm, sb.coords_rm, sb.frames_rm)
 
@@ -420,8 +419,9 @@ def _contact_buffers(capacity: int, dtype) -> tuple:
 
 
 def _constants(dtype) -> tuple:
-    eps = np.finfo(dtype).eps
-    return dtype(1.0), dtype(_BAND_ULPS * eps)
+    """``(1, 64 ulp)`` in ``dtype``: the unit, and the relative size of the rounding
+    band around ε (and of the sliver threshold on sin² of a triangle's largest angle)."""
+    return dtype(1.0), dtype(_BAND_ULPS * np.finfo(dtype).eps)
 
 
 def _mode(kernel: str) -> int:

@@ -1,8 +1,14 @@
 """Loops over batches of triangle pairs (the kernels the host API calls).
 
 Layout: a triangle set is ``coords (9, n)`` (rows x0 y0 z0 x1 … z2) plus
-``frames (13, n)`` from :func:`frames_kernel` (rows: unit normal 0–2, dual basis
-g1 3–5, g2 6–8, inverse squared edge lengths 9–11, valid flag 12). Every pair
+``frames (14, n)`` from :func:`frames_kernel` (rows: unit normal 0–2, dual basis
+g1 3–5, g2 6–8, inverse squared edge lengths 9–11, valid flag 12, conditioning
+κ = 1/sin θ of the angle at vertex 0, 13).
+
+Rounding band: the inside test of a face errs by about ``ulp·|w|·κ``, so every
+band around ε is ``64 ulp · (scale of the pair) · max(κ_A, κ_B)``: hybrid and
+exact decide alike even for poorly shaped triangles (which then fall back to
+the exact kernel more often). Every pair
 is evaluated in a pair-local frame whose origin is vertex 0 of its A triangle.
 
 LLVM vectorises a pair loop only when its loads are contiguous, so the
@@ -41,15 +47,13 @@ N_STATS = 4
 
 @njit(**JIT)
 def frames_kernel(coords, frames, one, tiny):
-    """Fill ``frames (13, n)`` from ``coords (9, n)``."""
+    """Fill ``frames (14, n)`` from ``coords (9, n)``."""
     for i in range(coords.shape[1]):
-        n, g1, g2, il, valid = triangle_frame(
-            (coords[0, i], coords[1, i], coords[2, i]),
-            (coords[3, i], coords[4, i], coords[5, i]),
-            (coords[6, i], coords[7, i], coords[8, i]),
-            one,
-            tiny,
-        )
+        v0 = (coords[0, i], coords[1, i], coords[2, i])
+        v1 = (coords[3, i], coords[4, i], coords[5, i])
+        v2 = (coords[6, i], coords[7, i], coords[8, i])
+        n, g1, g2, il, valid = triangle_frame(v0, v1, v2, one, tiny)
+        frames[13, i] = select(valid, _conditioning(v0, v1, v2, one, tiny), one)
         frames[0, i], frames[1, i], frames[2, i] = n
         frames[3, i], frames[4, i], frames[5, i] = g1
         frames[6, i], frames[7, i], frames[8, i] = g2
@@ -81,6 +85,17 @@ def _pair(a, i, b, j):
         (b[3, j] - ox, b[4, j] - oy, b[5, j] - oz),
         (b[6, j] - ox, b[7, j] - oy, b[8, j] - oz),
     )
+
+
+@njit(**INLINE)
+def _conditioning(v0, v1, v2, one, tiny):
+    """κ = 1/sin θ of the angle at ``v0``, at most 1/√tiny (θ → 0 or 180°: no plane)."""
+    x1, y1, z1 = v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2]
+    x2, y2, z2 = v2[0] - v0[0], v2[1] - v0[1], v2[2] - v0[2]
+    cx, cy, cz = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
+    lengths = (x1 * x1 + y1 * y1 + z1 * z1) * (x2 * x2 + y2 * y2 + z2 * z2)
+    sin2 = (cx * cx + cy * cy + cz * cz) / select(lengths > one - one, lengths, one)
+    return one / sqrt(max(sin2, tiny))
 
 
 @njit(**INLINE)
@@ -135,7 +150,8 @@ def bound_rows(a, fa, i, b, fb, eps_i, eps_b, one, band_factor, margin):
         o, a0, a1, a2, b0, b1, b2 = _pair(a, i, b, j)
         ca, cb = centroid(a0, a1, a2, one), centroid(b0, b1, b2, one)
         low = separation_bounds(ca, cb, a0, a1, a2, b0, b1, b2, one)[1]
-        band = band_factor * (low + _extent(fa, i, one) + _extent(fb, j, one))
+        kappa = max(fa[13, i], fb[13, j])
+        band = band_factor * (low + _extent(fa, i, one) + _extent(fb, j, one)) * kappa
         margin[j] = low - (eps_i + eps_b[j] + band)
 
 
@@ -155,13 +171,17 @@ def bound_paired(a, b, m, eps, one, band_factor, margin):
     """As :func:`bound_rows` for pairs (t, t) with contact distances ``eps[t]``.
 
     Needs coordinates only, so a candidate list can be culled before the
-    frames of its survivors are gathered.
+    frames of its survivors are gathered; κ comes from the coordinates (never
+    below the frames' κ: ``band_factor`` doubles as the sliver threshold).
     """
     for t in range(m):
         o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
         ca, cb = centroid(a0, a1, a2, one), centroid(b0, b1, b2, one)
         low = separation_bounds(ca, cb, a0, a1, a2, b0, b1, b2, one)[1]
-        band = band_factor * (low + _longest_edge(a0, a1, a2) + _longest_edge(b0, b1, b2))
+        kappa = max(
+            _conditioning(a0, a1, a2, one, band_factor), _conditioning(b0, b1, b2, one, band_factor)
+        )
+        band = band_factor * (low + _longest_edge(a0, a1, a2) + _longest_edge(b0, b1, b2)) * kappa
         margin[t] = low - (eps[t] + band)
 
 
@@ -193,7 +213,8 @@ def iterate_paired(a, fa, b, fb, m, iterations, one, band_factor, scratch):
         upper, lower = separation_bounds(p, q, a0, a1, a2, b0, b1, b2, one)
         scratch[6, k] = upper
         scratch[7, k] = lower
-        scratch[8, k] = band_factor * (upper + _extent(fa, t, one) + _extent(fb, t, one))
+        kappa = max(fa[13, t], fb[13, t])
+        scratch[8, k] = band_factor * (upper + _extent(fa, t, one) + _extent(fb, t, one)) * kappa
 
 
 @njit(**JIT)
@@ -333,9 +354,9 @@ def workspace(a):
     f = a.dtype
     return (
         np.empty((9, BLOCK), f),
-        np.empty((13, BLOCK), f),
+        np.empty((14, BLOCK), f),
         np.empty((9, BLOCK), f),
-        np.empty((13, BLOCK), f),
+        np.empty((14, BLOCK), f),
         np.empty(BLOCK, np.int64),
         np.empty(BLOCK, np.int64),
         np.empty(BLOCK, f),
