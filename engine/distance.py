@@ -224,15 +224,11 @@ def triangle_distances(
     -------
     TriangleDistances
     """
-    mode = _mode(kernel)
-    dtype = _precision(precision)
-    sa, sb = TriangleSet.of(a, precision, "a"), TriangleSet.of(b, precision, "b")
+    sa, sb, dtype, params = _prepare(a, b, kernel, precision, iterations, rtol)
     n = len(sa)
     if len(sb) != n:
         raise InvalidArgumentError(f"a and b must pair up: {n} and {len(sb)} triangles")
     eps = _epsilon(epsilon, n, dtype, "epsilon")
-    iterations, rtol = _iteration_args(iterations, rtol)
-    one, band = _constants(dtype)
     distance = np.empty(n, dtype)
     lower = np.empty(n, dtype)
     point_a = np.empty((3, n), dtype)
@@ -249,11 +245,7 @@ def triangle_distances(
             eps,
             start,
             stop,
-            mode,
-            iterations,
-            dtype(rtol),
-            one,
-            band,
+            params,
             distance,
             lower,
             point_a,
@@ -299,14 +291,9 @@ def triangle_contacts(
     -------
     TriangleContacts
     """
-    mode = _mode(kernel)
-    dtype = _precision(precision)
-    sa, sb = TriangleSet.of(a, precision, "a"), TriangleSet.of(b, precision, "b")
+    sa, sb, dtype, params = _prepare(a, b, kernel, precision, iterations, rtol)
     eps_a = _epsilon(epsilon_a, len(sa), dtype, "epsilon_a")
     eps_b = _epsilon(epsilon_b, len(sb), dtype, "epsilon_b")
-    iterations, rtol = _iteration_args(iterations, rtol)
-    one, band = _constants(dtype)
-    params = (mode, np.int64(iterations), dtype(rtol), one, band)
     rm = (sa.coords_rm, sa.frames_rm, sb.coords_rm, sb.frames_rm)
 
     if pairs is None:
@@ -416,6 +403,19 @@ def _contact_buffers(capacity: int, dtype) -> tuple:
         np.empty((3, capacity), dtype),
         np.empty(capacity, np.int8),
     )
+
+
+def _prepare(a, b, kernel, precision, iterations, rtol) -> tuple:
+    """Validated ``(TriangleSet a, TriangleSet b, dtype, kernel params)``.
+
+    ``params = (mode, iterations, rtol, 1, band factor)`` in the kernels' types.
+    """
+    mode = _mode(kernel)
+    dtype = _precision(precision)
+    sa, sb = TriangleSet.of(a, precision, "a"), TriangleSet.of(b, precision, "b")
+    iterations, rtol = _iteration_args(iterations, rtol)
+    one, band = _constants(dtype)
+    return sa, sb, dtype, (mode, np.int64(iterations), dtype(rtol), one, band)
 
 
 def _constants(dtype) -> tuple:

@@ -264,31 +264,16 @@ def gather_coords(src, pairs, side, t0, m, dst):
 
 @njit(**JIT)
 def paired_kernel(
-    a,
-    fa,
-    b,
-    fb,
-    eps,
-    start,
-    stop,
-    mode,
-    iterations,
-    rtol,
-    one,
-    band_factor,
-    distance,
-    lower,
-    point_a,
-    point_b,
-    status,
-    stats,
+    a, fa, b, fb, eps, start, stop, params, distance, lower, point_a, point_b, status, stats
 ):
     """Distances of pairs ``(t, t)``, ``start ≤ t < stop``.
 
     Outputs ``distance, lower (n,)``, ``point_a, point_b (3, n)``, ``status (n,)``
     int8 (the first kernel's result before any fallback; for the exact kernel
     ``CONTACT`` when ``d ≤ eps[t]``), and ``stats (N_STATS,)`` int64, added to.
+    ``params = (mode, iterations, rtol, one, band_factor)``.
     """
+    mode, iterations, rtol, one, band_factor = params
     stats[STAT_PAIRS] += stop - start
     if mode == EXACT:
         for t in range(start, stop):
@@ -417,6 +402,18 @@ def _flush(rm, c, params, work, n, out, stats):
 
 
 @njit(**JIT)
+def _enqueue(i, j, eps, c, n, rm, params, work, out, stats):
+    """Queue candidate (i, j) at slot ``c``; resolve the queue once it holds a full
+    block. Returns the new ``(c, n)``."""
+    work[4][c], work[5][c], work[6][c] = i, j, eps
+    c += 1
+    if c == BLOCK:
+        n = _flush(rm, c, params, work, n, out, stats)
+        c = ZERO
+    return c, n
+
+
+@njit(**JIT)
 def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, stats):
     """Contacts among all pairs ``(i, j)``, ``start ≤ i < stop``, every j (streamed).
 
@@ -433,7 +430,6 @@ def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, s
     nb = b.shape[1]
     n = ZERO
     work = workspace(a)
-    gi, gj, geps = work[4], work[5], work[6]
     margin = np.empty(nb, a.dtype)
     dist = np.empty(nb, a.dtype)
     c = ZERO
@@ -451,11 +447,7 @@ def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, s
         for j in range(nb):
             if margin[j] <= 0:
                 kept += 1
-                gi[c], gj[c], geps[c] = i, j, eps_a[i] + eps_b[j]
-                c += 1
-                if c == BLOCK:
-                    n = _flush(rm, c, params, work, n, out, stats)
-                    c = ZERO
+                c, n = _enqueue(i, j, eps_a[i] + eps_b[j], c, n, rm, params, work, out, stats)
         stats[STAT_CULLED] += nb - kept
     if c > 0:
         n = _flush(rm, c, params, work, n, out, stats)
@@ -474,7 +466,6 @@ def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, stats):
     mode, one, band_factor = params[0], params[3], params[4]
     n = ZERO
     work = workspace(a_rm)
-    gi, gj, geps = work[4], work[5], work[6]
     ca, cb = np.empty((9, BLOCK), a_rm.dtype), np.empty((9, BLOCK), a_rm.dtype)
     ceps = np.empty(BLOCK, a_rm.dtype)
     margin = np.empty(BLOCK, a_rm.dtype)
@@ -495,11 +486,8 @@ def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, stats):
         for k in range(m):
             if margin[k] <= 0:
                 kept += 1
-                gi[c], gj[c], geps[c] = pairs[t0 + k, 0], pairs[t0 + k, 1], ceps[k]
-                c += 1
-                if c == BLOCK:
-                    n = _flush(rm, c, params, work, n, out, stats)
-                    c = ZERO
+                i, j = pairs[t0 + k, 0], pairs[t0 + k, 1]
+                c, n = _enqueue(i, j, ceps[k], c, n, rm, params, work, out, stats)
         stats[STAT_CULLED] += m - kept
     if c > 0:
         n = _flush(rm, c, params, work, n, out, stats)
