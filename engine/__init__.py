@@ -1,4 +1,4 @@
-"""mrdem engine: meshes, shapes, triangle-distance kernels (pure computation).
+"""mrdem engine: meshes, shapes, triangle-distance kernels, surrogate trees (pure computation).
 
 Never imports ``service`` or ``clients``.
 """
@@ -17,6 +17,7 @@ from .distance import (
 )
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
 from .mesh import MassProperties, Mesh, load_mesh
+from .tree import SurrogateTree, TreeStats, build_tree
 
 __all__ = [
     "DEFAULT_ITERATIONS",
@@ -24,6 +25,7 @@ __all__ = [
     "PairStatus",
     "TriangleContacts",
     "TriangleDistances",
+    "TreeStats",
     "TriangleSet",
     "triangle_contacts",
     "triangle_distances",
@@ -33,6 +35,8 @@ __all__ = [
     "InvalidMeshError",
     "MassProperties",
     "Mesh",
+    "SurrogateTree",
+    "build_tree",
     "load_mesh",
     "shapes",
 ]
