@@ -4,6 +4,7 @@ Never imports ``service`` or ``clients``.
 """
 
 from . import shapes
+from .contacts import ContactSet, ContactStats, find_contacts
 from .distance import (
     DEFAULT_ITERATIONS,
     KernelStats,
@@ -17,9 +18,14 @@ from .distance import (
 )
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
 from .mesh import MassProperties, Mesh, load_mesh
+from .pose import Pose
 from .tree import SurrogateTree, TreeStats, build_tree
 
 __all__ = [
+    "ContactSet",
+    "ContactStats",
+    "Pose",
+    "find_contacts",
     "DEFAULT_ITERATIONS",
     "KernelStats",
     "PairStatus",

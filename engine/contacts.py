@@ -1,0 +1,302 @@
+"""Contact detection between two posed bodies (paper §2, §5.1): flat and multiresolution.
+
+Every query runs in body A's frame (a pair-local frame): B's tree is moved by the
+relative pose ``pose_a⁻¹ ∘ pose_b``, so coordinates stay small wherever the bodies are.
+
+Multiresolution search (``hierarchy=True``) keeps a **front of node pairs**, starting
+at the two roots, and streams each level's front through one listed kernel call:
+
+* a pair with a surrogate is evaluated with the iterative kernel (exact if
+  ``kernel="exact"``); "no contact" prunes both subtrees, "contact" or "not
+  converged" unfolds the node with the larger ε (a leaf is never unfolded);
+* a leaf–leaf pair is evaluated with ``kernel`` (hybrid: exact for not-converged).
+
+Surrogate ε carries a small safety margin at query time (a few hundred ulp of the
+pair's scale) so that rounding can never prune a pair the flat search reports;
+leaf–leaf evaluations are bit-identical to the flat search's. Hence (Lemma 1) the
+finest-level contact pairs equal those of the flat search, pair for pair.
+
+Contacts: for a leaf pair with closest points p (on A), q (on B) at distance d, the
+point is on the segment p→q weighted by the ε's (midpoint for equal ε), the normal
+points from A to B ((q − p)/d, or A's face normal when d ≈ 0), and the overlap is
+ε_a + ε_b − d. Points of one body pair closer than the smaller ε are merged into
+their average (normals averaged and renormalised, overlaps averaged).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .distance import TriangleSet, triangle_contacts
+from .errors import InvalidArgumentError
+from .pose import Pose
+from .tree import SurrogateTree
+
+__all__ = ["ContactSet", "ContactStats", "find_contacts"]
+
+_MARGIN_ULPS = 256
+
+
+@dataclass(frozen=True)
+class ContactStats:
+    """Counters of one query.
+
+    comparisons_per_level : triangle pairs evaluated per front level (one entry, all
+        leaf pairs, for the flat search)
+    iterative, fallbacks : iterative evaluations and exact fallbacks
+    unfoldings : node pairs unfolded
+    raw_contacts, merged_contacts : contact points before and after merging
+    """
+
+    comparisons_per_level: tuple[int, ...] = ()
+    iterative: int = 0
+    fallbacks: int = 0
+    unfoldings: int = 0
+    raw_contacts: int = 0
+    merged_contacts: int = 0
+
+    @property
+    def comparisons(self) -> int:
+        return sum(self.comparisons_per_level)
+
+
+@dataclass(frozen=True)
+class ContactSet:
+    """Contacts between two bodies, in the world frame.
+
+    pairs : (m, 2) int64 — (face of A, face of B) in contact, before merging, sorted
+    points : (k, 3) float64 — merged contact points
+    normals : (k, 3) float64 — unit, from A to B
+    overlaps : (k,) float64 — ε_a + ε_b − d, in [0, ε_a + ε_b]
+    stats : ContactStats
+    """
+
+    pairs: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    overlaps: np.ndarray
+    stats: ContactStats = field(default_factory=ContactStats)
+
+
+def find_contacts(
+    tree_a: SurrogateTree,
+    pose_a: Pose,
+    tree_b: SurrogateTree,
+    pose_b: Pose,
+    kernel: str = "hybrid",
+    hierarchy: bool = True,
+    precision: str = "float64",
+) -> ContactSet:
+    """Contacts between body A (``tree_a`` at ``pose_a``) and body B.
+
+    Parameters
+    ----------
+    tree_a, tree_b : SurrogateTree — the bodies' trees (body frames); ε of the leaves
+        is each body's halo
+    pose_a, pose_b : Pose
+    kernel : "exact", "iterative" or "hybrid" — for leaf pairs ("iterative" then
+        reports only certified contacts)
+    hierarchy : bool — multiresolution search; False runs the flat search over all
+        leaf pairs
+    precision : "float32" or "float64"
+
+    Returns
+    -------
+    ContactSet
+    """
+    for name, tree in (("tree_a", tree_a), ("tree_b", tree_b)):
+        if not isinstance(tree, SurrogateTree):
+            raise InvalidArgumentError(f"{name} must be a SurrogateTree")
+    for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
+        if not isinstance(pose, Pose):
+            raise InvalidArgumentError(f"{name} must be a Pose")
+    relative = pose_a.inverse().compose(pose_b)
+    nodes_b = relative.apply(tree_b.triangles)
+    if hierarchy:
+        pairs, res, stats = _hierarchical(tree_a, tree_b, nodes_b, relative, kernel, precision)
+    else:
+        pairs, res, stats = _flat(tree_a, tree_b, nodes_b, kernel, precision)
+    contact = res.status == 1 if kernel == "iterative" else np.ones(len(pairs), bool)
+    pairs, distance = pairs[contact], res.distance[contact].astype(np.float64)
+    p, q = res.point_a[contact].astype(np.float64), res.point_b[contact].astype(np.float64)
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    pairs, distance, p, q = pairs[order], distance[order], p[order], q[order]
+    points, normals, overlaps = _contact_points(tree_a, tree_b, pairs, distance, p, q)
+    points, normals, overlaps = _merge(
+        points, normals, overlaps, min(tree_a.leaf_epsilon, tree_b.leaf_epsilon)
+    )
+    stats = ContactStats(stats[0], stats[1], stats[2], stats[3], len(pairs), len(points))
+    rot = pose_a.rotation
+    return ContactSet(pairs, points @ rot.T + pose_a.position, normals @ rot.T, overlaps, stats)
+
+
+def _face_nodes(tree: SurrogateTree) -> np.ndarray:
+    """(F,) node index of each face's leaf."""
+    if "_face_nodes" not in tree.__dict__:
+        leaves = np.flatnonzero(tree.face >= 0)
+        tree.__dict__["_face_nodes"] = leaves[np.argsort(tree.face[leaves])]
+    return tree.__dict__["_face_nodes"]
+
+
+def _leaf_set(tree: SurrogateTree, precision: str) -> tuple[TriangleSet, np.ndarray]:
+    """The leaves (in face order) prepared for the kernels, cached on the tree."""
+    cache = tree.__dict__.setdefault("_leaf_sets", {})
+    if precision not in cache:
+        leaves = _face_nodes(tree)
+        cache[precision] = (TriangleSet(tree.triangles[leaves], precision), leaves)
+    return cache[precision]
+
+
+def _flat(tree_a, tree_b, nodes_b, kernel, precision):
+    sa, _ = _leaf_set(tree_a, precision)
+    _, leaves_b = _leaf_set(tree_b, precision)
+    sb = TriangleSet(nodes_b[leaves_b], precision)
+    res = triangle_contacts(
+        sa,
+        sb,
+        tree_a.leaf_epsilon,
+        tree_b.leaf_epsilon,
+        kernel=kernel,
+        precision=precision,
+        threads=1,
+    )
+    s = res.stats
+    return res.pairs, res, ((s.pairs,), s.iterative, s.fallbacks, 0)
+
+
+def _hierarchical(tree_a, tree_b, nodes_b, relative, kernel, precision):
+    cache = tree_a.__dict__.setdefault("_node_sets", {})
+    if precision not in cache:
+        cache[precision] = TriangleSet(tree_a.triangles, precision)
+    sa, sb = cache[precision], TriangleSet(nodes_b, precision)
+    scale = 2 * (tree_a.bounding_radius + tree_b.bounding_radius) + np.linalg.norm(
+        relative.position
+    )
+    margin = _MARGIN_ULPS * np.finfo(precision).eps * scale
+    eps_a = tree_a.epsilon + np.where(tree_a.face < 0, margin, 0.0)
+    eps_b = tree_b.epsilon + np.where(tree_b.face < 0, margin, 0.0)
+    leaf_a, leaf_b = tree_a.face >= 0, tree_b.face >= 0
+    surrogate_kernel = "exact" if kernel == "exact" else "iterative"
+    front = np.zeros((1, 2), np.int64)
+    found, per_level, iterative, fallbacks, unfoldings = [], [], 0, 0, 0
+    while len(front):
+        per_level.append(len(front))
+        finest = leaf_a[front[:, 0]] & leaf_b[front[:, 1]]
+        if finest.any():
+            res = triangle_contacts(
+                sa,
+                sb,
+                eps_a,
+                eps_b,
+                pairs=front[finest],
+                kernel=kernel,
+                precision=precision,
+                threads=1,
+            )
+            found.append(res)
+            iterative, fallbacks = iterative + res.stats.iterative, fallbacks + res.stats.fallbacks
+        coarse = front[~finest]
+        if not len(coarse):
+            break
+        res = triangle_contacts(
+            sa,
+            sb,
+            eps_a,
+            eps_b,
+            pairs=coarse,
+            kernel=surrogate_kernel,
+            precision=precision,
+            threads=1,
+        )
+        iterative += res.stats.iterative
+        hits = res.pairs  # contact or not converged: unfold
+        unfoldings += len(hits)
+        front = _unfold(hits, tree_a, tree_b, eps_a, eps_b)
+    if found:
+        pairs = np.concatenate([r.pairs for r in found])
+        merged = _Concat(found)
+    else:
+        pairs, merged = np.zeros((0, 2), np.int64), _Concat([])
+    faces = np.stack([tree_a.face[pairs[:, 0]], tree_b.face[pairs[:, 1]]], axis=1).astype(np.int64)
+    return faces, merged, (tuple(per_level), iterative, fallbacks, unfoldings)
+
+
+class _Concat:
+    """The per-pair arrays of several TriangleContacts results, concatenated."""
+
+    def __init__(self, parts) -> None:
+        def cat(name, shape):
+            arrays = [getattr(p, name) for p in parts]
+            return np.concatenate(arrays) if arrays else np.zeros(shape)
+
+        self.distance = cat("distance", (0,))
+        self.point_a = cat("point_a", (0, 3))
+        self.point_b = cat("point_b", (0, 3))
+        self.status = cat("status", (0,)).astype(np.int8)
+
+
+def _unfold(hits, tree_a, tree_b, eps_a, eps_b) -> np.ndarray:
+    """Children pairs of the node pairs ``hits (k, 2)``: unfold the node with larger ε."""
+    if not len(hits):
+        return np.zeros((0, 2), np.int64)
+    na, nb = hits[:, 0], hits[:, 1]
+    can_a, can_b = tree_a.face[na] < 0, tree_b.face[nb] < 0
+    unfold_a = can_a & (~can_b | (eps_a[na] >= eps_b[nb]))
+    parts = []
+    for side, (mask, tree, node, other) in enumerate(
+        ((unfold_a, tree_a, na, nb), (~unfold_a, tree_b, nb, na))
+    ):
+        node, other = node[mask], other[mask]
+        counts = tree.child_count[node].astype(np.int64)
+        starts = tree.first_child[node].astype(np.int64)
+        offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        children = np.repeat(starts, counts) + offsets
+        others = np.repeat(other, counts)
+        parts.append(np.stack([children, others] if side == 0 else [others, children], axis=1))
+    return np.concatenate(parts).astype(np.int64)
+
+
+def _contact_points(tree_a, tree_b, pairs, distance, p, q):
+    """Contact points, unit normals A→B and overlaps in A's frame, one per pair."""
+    ea, eb = tree_a.leaf_epsilon, tree_b.leaf_epsilon
+    weight = 0.5 if ea + eb == 0 else ea / (ea + eb)
+    points = p + weight * (q - p)
+    gap = q - p
+    length = np.linalg.norm(gap, axis=1)
+    tiny = 1e3 * np.finfo(np.float32).eps * max(tree_a.bounding_radius, tree_b.bounding_radius)
+    face = tree_a.triangles[_face_nodes(tree_a)[pairs[:, 0]]]
+    face_normal = np.cross(face[:, 1] - face[:, 0], face[:, 2] - face[:, 0])
+    # decide on the points' own gap: a (float32) distance can be positive while the
+    # two points round to the same coordinates
+    normals = np.where((length > tiny)[:, None], gap, face_normal)
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    overlaps = np.clip(ea + eb - distance, 0.0, ea + eb)
+    return points, normals, overlaps
+
+
+def _merge(points, normals, overlaps, radius):
+    """Greedy merge of points closer than ``radius`` into their averages."""
+    if len(points) <= 1 or radius <= 0:
+        return points, normals, overlaps
+    label = np.full(len(points), -1)
+    centres: list[np.ndarray] = []
+    for k in np.argsort(-overlaps, kind="stable"):
+        if centres:
+            d = np.linalg.norm(np.array(centres) - points[k], axis=1)
+            j = int(d.argmin())
+            if d[j] < radius:
+                label[k] = j
+                continue
+        label[k] = len(centres)
+        centres.append(points[k])
+    n = len(centres)
+    count = np.bincount(label, minlength=n)[:, None]
+    merged_points = np.stack([np.bincount(label, points[:, c], n) for c in range(3)], 1) / count
+    summed = np.stack([np.bincount(label, normals[:, c], n) for c in range(3)], 1)
+    norms = np.linalg.norm(summed, axis=1, keepdims=True)
+    first = np.array([normals[np.flatnonzero(label == j)[0]] for j in range(n)])
+    merged_normals = np.where(norms > 1e-12, summed / np.where(norms > 0, norms, 1), first)
+    merged_overlaps = np.bincount(label, overlaps, n) / count[:, 0]
+    return merged_points, merged_normals, merged_overlaps
