@@ -29,8 +29,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .distance import TriangleSet, triangle_contacts
+from .distance import (
+    DEFAULT_ITERATIONS,
+    DEFAULT_RTOL,
+    KERNELS,
+    TriangleSet,
+    _constants,
+    _contact_buffers,
+    _mode,
+    _precision,
+    triangle_contacts,
+)
 from .errors import InvalidArgumentError
+from .kernels import triangle_batch as tb
+from .kernels.traversal import traverse_kernel
 from .pose import Pose
 from .tree import SurrogateTree
 
@@ -112,12 +124,13 @@ def find_contacts(
     for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
         if not isinstance(pose, Pose):
             raise InvalidArgumentError(f"{name} must be a Pose")
+    _mode(kernel), _precision(precision)  # validate before any work
     relative = pose_a.inverse().compose(pose_b)
-    nodes_b = relative.apply(tree_b.triangles)
+    moved_b = _master(tree_b).moved(relative.rotation, relative.position)
     if hierarchy:
-        pairs, res, stats = _hierarchical(tree_a, tree_b, nodes_b, relative, kernel, precision)
+        pairs, res, stats = _hierarchical(tree_a, tree_b, moved_b, relative, kernel, precision)
     else:
-        pairs, res, stats = _flat(tree_a, tree_b, nodes_b, kernel, precision)
+        pairs, res, stats = _flat(tree_a, tree_b, moved_b, kernel, precision)
     contact = res.status == 1 if kernel == "iterative" else np.ones(len(pairs), bool)
     pairs, distance = pairs[contact], res.distance[contact].astype(np.float64)
     p, q = res.point_a[contact].astype(np.float64), res.point_b[contact].astype(np.float64)
@@ -140,19 +153,16 @@ def _face_nodes(tree: SurrogateTree) -> np.ndarray:
     return tree.__dict__["_face_nodes"]
 
 
-def _leaf_set(tree: SurrogateTree, precision: str) -> tuple[TriangleSet, np.ndarray]:
-    """The leaves (in face order) prepared for the kernels, cached on the tree."""
-    cache = tree.__dict__.setdefault("_leaf_sets", {})
-    if precision not in cache:
-        leaves = _face_nodes(tree)
-        cache[precision] = (TriangleSet(tree.triangles[leaves], precision), leaves)
-    return cache[precision]
+def _master(tree: SurrogateTree) -> TriangleSet:
+    """All nodes of ``tree`` prepared in float64 (cached on the tree)."""
+    if "_master" not in tree.__dict__:
+        tree.__dict__["_master"] = TriangleSet(tree.triangles, "float64", "tree")
+    return tree.__dict__["_master"]
 
 
-def _flat(tree_a, tree_b, nodes_b, kernel, precision):
-    sa, _ = _leaf_set(tree_a, precision)
-    _, leaves_b = _leaf_set(tree_b, precision)
-    sb = TriangleSet(nodes_b[leaves_b], precision)
+def _flat(tree_a, tree_b, moved_b, kernel, precision):
+    sa = _master(tree_a).subset(_face_nodes(tree_a), precision)
+    sb = moved_b.subset(_face_nodes(tree_b), precision)
     res = triangle_contacts(
         sa,
         sb,
@@ -166,96 +176,52 @@ def _flat(tree_a, tree_b, nodes_b, kernel, precision):
     return res.pairs, res, ((s.pairs,), s.iterative, s.fallbacks, 0)
 
 
-def _hierarchical(tree_a, tree_b, nodes_b, relative, kernel, precision):
+def _hierarchical(tree_a, tree_b, moved_b, relative, kernel, precision):
+    dtype = np.dtype(precision).type
     cache = tree_a.__dict__.setdefault("_node_sets", {})
     if precision not in cache:
-        cache[precision] = TriangleSet(tree_a.triangles, precision)
-    sa, sb = cache[precision], TriangleSet(nodes_b, precision)
+        cache[precision] = _master(tree_a).subset(np.arange(len(tree_a)), precision)
+    sa = cache[precision]
+    sb = moved_b.subset(np.arange(len(tree_b)), precision)
     scale = 2 * (tree_a.bounding_radius + tree_b.bounding_radius) + np.linalg.norm(
         relative.position
     )
     margin = _MARGIN_ULPS * np.finfo(precision).eps * scale
-    eps_a = tree_a.epsilon + np.where(tree_a.face < 0, margin, 0.0)
-    eps_b = tree_b.epsilon + np.where(tree_b.face < 0, margin, 0.0)
-    leaf_a, leaf_b = tree_a.face >= 0, tree_b.face >= 0
-    surrogate_kernel = "exact" if kernel == "exact" else "iterative"
-    front = np.zeros((1, 2), np.int64)
-    found, per_level, iterative, fallbacks, unfoldings = [], [], 0, 0, 0
-    while len(front):
-        per_level.append(len(front))
-        finest = leaf_a[front[:, 0]] & leaf_b[front[:, 1]]
-        if finest.any():
-            res = triangle_contacts(
-                sa,
-                sb,
-                eps_a,
-                eps_b,
-                pairs=front[finest],
-                kernel=kernel,
-                precision=precision,
-                threads=1,
-            )
-            found.append(res)
-            iterative, fallbacks = iterative + res.stats.iterative, fallbacks + res.stats.fallbacks
-        coarse = front[~finest]
-        if not len(coarse):
-            break
-        res = triangle_contacts(
-            sa,
-            sb,
-            eps_a,
-            eps_b,
-            pairs=coarse,
-            kernel=surrogate_kernel,
-            precision=precision,
-            threads=1,
+    eps_a = (tree_a.epsilon + np.where(tree_a.face < 0, margin, 0.0)).astype(dtype)
+    eps_b = (tree_b.epsilon + np.where(tree_b.face < 0, margin, 0.0)).astype(dtype)
+    one, band = _constants(dtype)
+    iterations, rtol = np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL)
+    coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
+    coarse = (coarse_mode, iterations, rtol, one, band)
+    leaf = (KERNELS[kernel], iterations, rtol, one, band)
+    rm = (sa.coords_rm, sa.frames_rm, sb.coords_rm, sb.frames_rm)
+    trees = [(t.face, t.first_child, t.child_count) for t in (tree_a, tree_b)]
+    capacity = 1024 + 16 * max(len(tree_a), len(tree_b))
+    while True:  # count, allocate, fill: a re-run only when the first guess was short
+        out = _contact_buffers(capacity, dtype)
+        stats = np.zeros(tb.N_STATS, np.int64)
+        levels = np.zeros(64, np.int64)
+        count, depth = traverse_kernel(
+            rm, eps_a, eps_b, trees[0], trees[1], coarse, leaf, out, stats, levels
         )
-        iterative += res.stats.iterative
-        hits = res.pairs  # contact or not converged: unfold
-        unfoldings += len(hits)
-        front = _unfold(hits, tree_a, tree_b, eps_a, eps_b)
-    if found:
-        pairs = np.concatenate([r.pairs for r in found])
-        merged = _Concat(found)
-    else:
-        pairs, merged = np.zeros((0, 2), np.int64), _Concat([])
-    faces = np.stack([tree_a.face[pairs[:, 0]], tree_b.face[pairs[:, 1]]], axis=1).astype(np.int64)
-    return faces, merged, (tuple(per_level), iterative, fallbacks, unfoldings)
+        if count <= capacity:
+            break
+        capacity = count
+    nodes = np.stack([out[0][:count], out[1][:count]], axis=1)
+    faces = np.stack([tree_a.face[nodes[:, 0]], tree_b.face[nodes[:, 1]]], axis=1)
+    per_level = tuple(int(x) for x in levels[: min(depth, len(levels))])
+    counters = (per_level, int(stats[tb.STAT_ITERATIVE]), int(stats[tb.STAT_FALLBACKS]), 0)
+    return faces.astype(np.int64), _Results(out, count), counters
 
 
-class _Concat:
-    """The per-pair arrays of several TriangleContacts results, concatenated."""
+class _Results:
+    """Per-pair arrays of a kernel's output buffers, trimmed to ``count``."""
 
-    def __init__(self, parts) -> None:
-        def cat(name, shape):
-            arrays = [getattr(p, name) for p in parts]
-            return np.concatenate(arrays) if arrays else np.zeros(shape)
-
-        self.distance = cat("distance", (0,))
-        self.point_a = cat("point_a", (0, 3))
-        self.point_b = cat("point_b", (0, 3))
-        self.status = cat("status", (0,)).astype(np.int8)
-
-
-def _unfold(hits, tree_a, tree_b, eps_a, eps_b) -> np.ndarray:
-    """Children pairs of the node pairs ``hits (k, 2)``: unfold the node with larger ε."""
-    if not len(hits):
-        return np.zeros((0, 2), np.int64)
-    na, nb = hits[:, 0], hits[:, 1]
-    can_a, can_b = tree_a.face[na] < 0, tree_b.face[nb] < 0
-    unfold_a = can_a & (~can_b | (eps_a[na] >= eps_b[nb]))
-    parts = []
-    for side, (mask, tree, node, other) in enumerate(
-        ((unfold_a, tree_a, na, nb), (~unfold_a, tree_b, nb, na))
-    ):
-        node, other = node[mask], other[mask]
-        counts = tree.child_count[node].astype(np.int64)
-        starts = tree.first_child[node].astype(np.int64)
-        offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        children = np.repeat(starts, counts) + offsets
-        others = np.repeat(other, counts)
-        parts.append(np.stack([children, others] if side == 0 else [others, children], axis=1))
-    return np.concatenate(parts).astype(np.int64)
+    def __init__(self, out, count: int) -> None:
+        self.distance = out[2][:count]
+        self.point_a = out[3][:, :count].T
+        self.point_b = out[4][:, :count].T
+        self.status = out[5][:count]
 
 
 def _contact_points(tree_a, tree_b, pairs, distance, p, q):

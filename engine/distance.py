@@ -167,6 +167,37 @@ class TriangleSet:
         return self.coords.shape[1]
 
     @classmethod
+    def prepared(cls, coords: np.ndarray, frames: np.ndarray) -> TriangleSet:
+        """A set from arrays a TriangleSet already prepared (e.g. rigidly moved copies):
+        ``coords (9, n)``, ``frames (14, n)`` of one float dtype. Not validated."""
+        self = cls.__new__(cls)
+        self.dtype = coords.dtype
+        self.coords = np.ascontiguousarray(coords)
+        self.frames = np.ascontiguousarray(frames)
+        self.coords_rm = np.ascontiguousarray(self.coords.T)
+        self.frames_rm = np.ascontiguousarray(self.frames.T)
+        return self
+
+    def moved(self, rotation: np.ndarray, translation: np.ndarray) -> TriangleSet:
+        """This set under ``x -> rotation @ x + translation`` (frames rotate, scalars stay)."""
+        coords = np.empty_like(self.coords)
+        for v in range(3):
+            coords[3 * v : 3 * v + 3] = (
+                rotation @ self.coords[3 * v : 3 * v + 3] + translation[:, None]
+            )
+        frames = self.frames.copy()
+        for row in (0, 3, 6):  # normal, dual basis g1, g2
+            frames[row : row + 3] = rotation @ self.frames[row : row + 3]
+        return TriangleSet.prepared(coords, frames)
+
+    def subset(self, index: np.ndarray, precision: str) -> TriangleSet:
+        """Triangles ``index`` in ``precision`` (rounded from this set's arrays)."""
+        dtype = _precision(precision)
+        return TriangleSet.prepared(
+            self.coords[:, index].astype(dtype), self.frames[:, index].astype(dtype)
+        )
+
+    @classmethod
     def of(
         cls, triangles: np.ndarray | TriangleSet, precision: str, name: str = "triangles"
     ) -> TriangleSet:
@@ -319,7 +350,9 @@ def triangle_contacts(
         n_outer = work = len(pair_array)
 
         def call(start, stop, out, stats):
-            return tb.listed_kernel(rm, eps_a, eps_b, pair_array, start, stop, params, out, stats)
+            return tb.listed_kernel(
+                rm, eps_a, eps_b, pair_array, start, stop, params, out, tb.ZERO, stats
+            )
 
     def run(start: int, stop: int):
         capacity = 1024 + 8 * (stop - start)

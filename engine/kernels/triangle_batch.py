@@ -455,16 +455,16 @@ def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, s
 
 
 @njit(**JIT)
-def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, stats):
+def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, n, stats):
     """Contacts among listed pairs ``pairs[t] = (i, j)`` (int64), ``start ≤ t < stop``.
 
-    Same arguments and return value as :func:`all_pairs_kernel`. Outside
+    Same arguments and return value as :func:`all_pairs_kernel`, except that
+    results are appended to ``out`` after its first ``n`` entries. Outside
     ``EXACT`` mode each block of pairs is culled on gathered coordinates;
     survivors are queued and resolved a full block at a time.
     """
     a_rm, b_rm = rm[0], rm[2]
     mode, one, band_factor = params[0], params[3], params[4]
-    n = ZERO
     work = workspace(a_rm)
     ca, cb = np.empty((9, BLOCK), a_rm.dtype), np.empty((9, BLOCK), a_rm.dtype)
     ceps = np.empty(BLOCK, a_rm.dtype)
