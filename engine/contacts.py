@@ -126,11 +126,10 @@ def find_contacts(
             raise InvalidArgumentError(f"{name} must be a Pose")
     _mode(kernel), _precision(precision)  # validate before any work
     relative = pose_a.inverse().compose(pose_b)
-    moved_b = _master(tree_b).moved(relative.rotation, relative.position)
     if hierarchy:
-        pairs, res, stats = _hierarchical(tree_a, tree_b, moved_b, relative, kernel, precision)
+        pairs, res, stats = _hierarchical(tree_a, tree_b, relative, kernel, precision)
     else:
-        pairs, res, stats = _flat(tree_a, tree_b, moved_b, kernel, precision)
+        pairs, res, stats = _flat(tree_a, tree_b, relative, kernel, precision)
     contact = res.status == 1 if kernel == "iterative" else np.ones(len(pairs), bool)
     pairs, distance = pairs[contact], res.distance[contact].astype(np.float64)
     p, q = res.point_a[contact].astype(np.float64), res.point_b[contact].astype(np.float64)
@@ -160,9 +159,13 @@ def _master(tree: SurrogateTree) -> TriangleSet:
     return tree.__dict__["_master"]
 
 
-def _flat(tree_a, tree_b, moved_b, kernel, precision):
+def _flat(tree_a, tree_b, relative, kernel, precision):
+    # B's leaves moved exactly as the hierarchical search moves them: leaf pairs are
+    # then evaluated on bit-identical inputs by both searches
     sa = _master(tree_a).subset(_face_nodes(tree_a), precision)
-    sb = moved_b.subset(_face_nodes(tree_b), precision)
+    coords_b, frames_b = _moved_row_major(_master(tree_b), relative, np.dtype(precision).type)
+    leaves = _face_nodes(tree_b)
+    sb = TriangleSet.prepared(coords_b[leaves].T, frames_b[leaves].T)
     res = triangle_contacts(
         sa,
         sb,
@@ -176,13 +179,13 @@ def _flat(tree_a, tree_b, moved_b, kernel, precision):
     return res.pairs, res, ((s.pairs,), s.iterative, s.fallbacks, 0)
 
 
-def _hierarchical(tree_a, tree_b, moved_b, relative, kernel, precision):
+def _hierarchical(tree_a, tree_b, relative, kernel, precision):
     dtype = np.dtype(precision).type
     cache = tree_a.__dict__.setdefault("_node_sets", {})
     if precision not in cache:
         cache[precision] = _master(tree_a).subset(np.arange(len(tree_a)), precision)
     sa = cache[precision]
-    sb = moved_b.subset(np.arange(len(tree_b)), precision)
+    coords_b, frames_b = _moved_row_major(_master(tree_b), relative, dtype)
     scale = 2 * (tree_a.bounding_radius + tree_b.bounding_radius) + np.linalg.norm(
         relative.position
     )
@@ -194,7 +197,7 @@ def _hierarchical(tree_a, tree_b, moved_b, relative, kernel, precision):
     coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
     coarse = (coarse_mode, iterations, rtol, one, band)
     leaf = (KERNELS[kernel], iterations, rtol, one, band)
-    rm = (sa.coords_rm, sa.frames_rm, sb.coords_rm, sb.frames_rm)
+    rm = (sa.coords_rm, sa.frames_rm, coords_b, frames_b)
     trees = [(t.face, t.first_child, t.child_count) for t in (tree_a, tree_b)]
     capacity = 1024 + 16 * max(len(tree_a), len(tree_b))
     while True:  # count, allocate, fill: a re-run only when the first guess was short
@@ -212,6 +215,19 @@ def _hierarchical(tree_a, tree_b, moved_b, relative, kernel, precision):
     per_level = tuple(int(x) for x in levels[: min(depth, len(levels))])
     counters = (per_level, int(stats[tb.STAT_ITERATIVE]), int(stats[tb.STAT_FALLBACKS]), 0)
     return faces.astype(np.int64), _Results(out, count), counters
+
+
+def _moved_row_major(master: TriangleSet, pose: Pose, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major ``(N, 9)`` coordinates and ``(N, 14)`` frames of ``master`` moved by
+    ``pose`` (frame vectors rotate, scalars stay), rounded to ``dtype`` in one pass."""
+    rot = pose.rotation
+    coords = master.coords_rm.reshape(-1, 3, 3) @ rot.T + pose.position
+    frames = master.frames_rm.copy()
+    frames[:, :9] = (master.frames_rm[:, :9].reshape(-1, 3, 3) @ rot.T).reshape(-1, 9)
+    return (
+        np.ascontiguousarray(coords.reshape(-1, 9), dtype=dtype),
+        np.ascontiguousarray(frames, dtype=dtype),
+    )
 
 
 class _Results:

@@ -178,18 +178,6 @@ class TriangleSet:
         self.frames_rm = np.ascontiguousarray(self.frames.T)
         return self
 
-    def moved(self, rotation: np.ndarray, translation: np.ndarray) -> TriangleSet:
-        """This set under ``x -> rotation @ x + translation`` (frames rotate, scalars stay)."""
-        coords = np.empty_like(self.coords)
-        for v in range(3):
-            coords[3 * v : 3 * v + 3] = (
-                rotation @ self.coords[3 * v : 3 * v + 3] + translation[:, None]
-            )
-        frames = self.frames.copy()
-        for row in (0, 3, 6):  # normal, dual basis g1, g2
-            frames[row : row + 3] = rotation @ self.frames[row : row + 3]
-        return TriangleSet.prepared(coords, frames)
-
     def subset(self, index: np.ndarray, precision: str) -> TriangleSet:
         """Triangles ``index`` in ``precision`` (rounded from this set's arrays)."""
         dtype = _precision(precision)
