@@ -34,6 +34,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common import best_time  # noqa: E402
+
 import engine  # noqa: E402
 from engine import TriangleSet, shapes, triangle_contacts, triangle_distances  # noqa: E402
 
@@ -63,17 +65,6 @@ def machine() -> dict:
     except (OSError, subprocess.CalledProcessError):
         info["cpu"] = platform.processor()
     return info
-
-
-def best_time(fn, repeat: int) -> float:
-    """Minimum wall time of ``repeat`` calls (after one warm-up call)."""
-    fn()
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def sphere_pair(gap: float) -> tuple[np.ndarray, np.ndarray]:

@@ -23,20 +23,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common import best_time  # noqa: E402
+
 import engine  # noqa: E402
 from engine import Pose, build_tree, find_contacts, shapes  # noqa: E402
 
 OUT = ROOT / "bench-results"
-
-
-def best_time(fn, repeat: int = 5) -> float:
-    fn()
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def build_times() -> list[dict]:
