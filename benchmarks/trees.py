@@ -57,6 +57,8 @@ def gap_queries() -> list[dict]:
     for gap in (1.0, 0.02, -0.01, -0.1):
         pa, pb = Pose.identity(), Pose([2.0 + gap, 0, 0], [1, 0, 0, 0])
         hier = find_contacts(tree, pa, tree, pb, kernel="hybrid")
+        sets = find_contacts(tree, pa, tree, pb, kernel="hybrid", traversal="sets")
+        assert np.array_equal(sets.pairs, hier.pairs)
         flat = find_contacts(tree, pa, tree, pb, kernel="exact", hierarchy=False)
         assert np.array_equal(hier.pairs, flat.pairs)
         t_h = best_time(lambda pa=pa, pb=pb: find_contacts(tree, pa, tree, pb))
@@ -69,6 +71,7 @@ def gap_queries() -> list[dict]:
                 "pairs": len(hier.pairs),
                 "points": len(hier.points),
                 "comparisons_hierarchy": hier.stats.comparisons,
+                "comparisons_active_sets": sets.stats.comparisons,
                 "comparisons_flat": flat.stats.comparisons,
                 "us_hierarchy": t_h * 1e6,
                 "us_flat": t_f * 1e6,
@@ -77,6 +80,7 @@ def gap_queries() -> list[dict]:
         r = rows[-1]
         print(
             f"gap {gap:+.2f}: pairs {r['pairs']:4d}  comparisons {r['comparisons_hierarchy']:6d}"
+            f" (active sets {r['comparisons_active_sets']:6d})"
             f" vs {r['comparisons_flat']}  hierarchy {r['us_hierarchy']:8.0f} us"
             f"  flat {r['us_flat']:8.0f} us"
         )

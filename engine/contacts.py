@@ -100,6 +100,7 @@ def find_contacts(
     kernel: str = "hybrid",
     hierarchy: bool = True,
     precision: str = "float64",
+    traversal: str = "pairs",
 ) -> ContactSet:
     """Contacts between body A (``tree_a`` at ``pose_a``) and body B.
 
@@ -113,6 +114,9 @@ def find_contacts(
     hierarchy : bool — multiresolution search; False runs the flat search over all
         leaf pairs
     precision : "float32" or "float64"
+    traversal : "pairs" — a front of node pairs, one Numba kernel per query (default);
+        "sets" — the paper's Algorithm 5: every pair of two active node sets per round
+        (driven from Python; for comparison, see BENCHMARKS.md)
 
     Returns
     -------
@@ -126,7 +130,11 @@ def find_contacts(
             raise InvalidArgumentError(f"{name} must be a Pose")
     _mode(kernel), _precision(precision)  # validate before any work
     relative = pose_a.inverse().compose(pose_b)
-    if hierarchy:
+    if traversal not in ("pairs", "sets"):
+        raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
+    if hierarchy and traversal == "sets":
+        pairs, res, stats = _active_sets(tree_a, tree_b, relative, kernel, precision)
+    elif hierarchy:
         pairs, res, stats = _hierarchical(tree_a, tree_b, relative, kernel, precision)
     else:
         pairs, res, stats = _flat(tree_a, tree_b, relative, kernel, precision)
@@ -186,12 +194,7 @@ def _hierarchical(tree_a, tree_b, relative, kernel, precision):
         cache[precision] = _master(tree_a).subset(np.arange(len(tree_a)), precision)
     sa = cache[precision]
     coords_b, frames_b = _moved_row_major(_master(tree_b), relative, dtype)
-    scale = 2 * (tree_a.bounding_radius + tree_b.bounding_radius) + np.linalg.norm(
-        relative.position
-    )
-    margin = _MARGIN_ULPS * np.finfo(precision).eps * scale
-    eps_a = (tree_a.epsilon + np.where(tree_a.face < 0, margin, 0.0)).astype(dtype)
-    eps_b = (tree_b.epsilon + np.where(tree_b.face < 0, margin, 0.0)).astype(dtype)
+    eps_a, eps_b = _node_epsilons(tree_a, tree_b, relative, precision)
     one, band = _constants(dtype)
     iterations, rtol = np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL)
     coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
@@ -228,6 +231,91 @@ def _moved_row_major(master: TriangleSet, pose: Pose, dtype) -> tuple[np.ndarray
         np.ascontiguousarray(coords.reshape(-1, 9), dtype=dtype),
         np.ascontiguousarray(frames, dtype=dtype),
     )
+
+
+def _active_sets(tree_a, tree_b, relative, kernel, precision):
+    """Algorithm 5: compare all pairs of the active sets; unfold both nodes of a hit."""
+    dtype = np.dtype(precision).type
+    sa = _master(tree_a).subset(np.arange(len(tree_a)), precision)
+    coords_b, frames_b = _moved_row_major(_master(tree_b), relative, dtype)
+    sb = TriangleSet.prepared(coords_b.T, frames_b.T)
+    eps_a, eps_b = _node_epsilons(tree_a, tree_b, relative, precision)
+    surrogate_kernel = "exact" if kernel == "exact" else "iterative"
+    active_a, active_b = np.zeros(1, np.int64), np.zeros(1, np.int64)
+    found, per_level, iterative, fallbacks = [], [], 0, 0
+    while len(active_a) and len(active_b):
+        grid = np.stack(np.meshgrid(active_a, active_b, indexing="ij"), -1).reshape(-1, 2)
+        per_level.append(len(grid))
+        finest = (tree_a.face[grid[:, 0]] >= 0) & (tree_b.face[grid[:, 1]] >= 0)
+        if finest.any():
+            res = triangle_contacts(
+                sa,
+                sb,
+                eps_a,
+                eps_b,
+                pairs=grid[finest],
+                kernel=kernel,
+                precision=precision,
+                threads=1,
+            )
+            found.append(res)
+            iterative, fallbacks = iterative + res.stats.iterative, fallbacks + res.stats.fallbacks
+        res = triangle_contacts(
+            sa,
+            sb,
+            eps_a,
+            eps_b,
+            pairs=grid[~finest],
+            kernel=surrogate_kernel,
+            precision=precision,
+            threads=1,
+        )
+        iterative += res.stats.iterative
+        hits = res.pairs
+        active_a = _unfold_set(tree_a, hits[:, 0])
+        active_b = _unfold_set(tree_b, hits[:, 1])
+    pairs = np.concatenate([r.pairs for r in found]) if found else np.zeros((0, 2), np.int64)
+    first = np.unique(pairs, axis=0, return_index=True)[1]  # a leaf pair may recur
+    out = _Stacked(found, first)
+    faces = np.stack([tree_a.face[pairs[first, 0]], tree_b.face[pairs[first, 1]]], axis=1)
+    return faces.astype(np.int64), out, (tuple(per_level), iterative, fallbacks, 0)
+
+
+def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
+    """Next active set: each leaf stays, each surrogate is replaced by its children."""
+    nodes = np.unique(nodes)
+    leaves = nodes[tree.face[nodes] >= 0]
+    inner = nodes[tree.face[nodes] < 0]
+    counts = tree.child_count[inner].astype(np.int64)
+    starts = np.repeat(tree.first_child[inner].astype(np.int64), counts)
+    children = starts + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    return np.unique(np.concatenate([leaves, children]))
+
+
+class _Stacked:
+    """Per-pair arrays of several TriangleContacts results, concatenated, rows ``keep``."""
+
+    def __init__(self, parts, keep) -> None:
+        def cat(name, shape):
+            arrays = [getattr(p, name) for p in parts]
+            return (np.concatenate(arrays) if arrays else np.zeros(shape))[keep]
+
+        self.distance = cat("distance", (0,))
+        self.point_a = cat("point_a", (0, 3))
+        self.point_b = cat("point_b", (0, 3))
+        self.status = cat("status", (0,)).astype(np.int8)
+
+
+def _node_epsilons(tree_a, tree_b, relative, precision):
+    """Per-node ε with the safety margin on surrogates (see the module docstring)."""
+    dtype = np.dtype(precision).type
+    scale = 2 * (tree_a.bounding_radius + tree_b.bounding_radius) + np.linalg.norm(
+        relative.position
+    )
+    margin = _MARGIN_ULPS * np.finfo(precision).eps * scale
+    eps_a = (tree_a.epsilon + np.where(tree_a.face < 0, margin, 0.0)).astype(dtype)
+    eps_b = (tree_b.epsilon + np.where(tree_b.face < 0, margin, 0.0)).astype(dtype)
+    return eps_a, eps_b
 
 
 class _Results:

@@ -132,3 +132,26 @@ def test_find_contacts_rejects_wrong_types(trees):
         find_contacts("tree", Pose.identity(), trees["box"], Pose.identity())
     with pytest.raises(InvalidArgumentError, match="Pose"):
         find_contacts(trees["box"], (0, 0, 0), trees["box"], Pose.identity())
+
+
+@pytest.mark.parametrize(("name_a", "name_b"), PAIRS[:4])
+def test_active_sets_traversal_equals_flat_search(trees, name_a, name_b):
+    """The paper's Algorithm 5 (traversal="sets") also returns exactly the flat pairs."""
+    rng = np.random.default_rng(7)
+    ta, tb = trees[name_a], trees[name_b]
+    reach = ta.bounding_radius + tb.bounding_radius
+    for _ in range(25):
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        pa = random_pose(rng)
+        pb = random_pose(rng, pa.position + direction * reach * rng.uniform(0.2, 1.1))
+        flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False)
+        sets = find_contacts(ta, pa, tb, pb, traversal="sets")
+        np.testing.assert_array_equal(sets.pairs, flat.pairs)
+
+
+def test_unknown_traversal_is_rejected(trees):
+    with pytest.raises(InvalidArgumentError, match="traversal"):
+        find_contacts(
+            trees["box"], Pose.identity(), trees["box"], Pose.identity(), traversal="depth-first"
+        )
