@@ -29,15 +29,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .arguments import KERNELS, check_kernel, check_precision, kernel_constants
 from .distance import (
     DEFAULT_ITERATIONS,
     DEFAULT_RTOL,
-    KERNELS,
     TriangleSet,
-    _constants,
     _contact_buffers,
-    _mode,
-    _precision,
     triangle_contacts,
 )
 from .errors import InvalidArgumentError
@@ -128,7 +125,7 @@ def find_contacts(
     for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
         if not isinstance(pose, Pose):
             raise InvalidArgumentError(f"{name} must be a Pose")
-    _mode(kernel), _precision(precision)  # validate before any work
+    check_kernel(kernel), check_precision(precision)  # validate before any work
     relative = pose_a.inverse().compose(pose_b)
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
@@ -195,7 +192,7 @@ def _hierarchical(tree_a, tree_b, relative, kernel, precision):
     sa = cache[precision]
     coords_b, frames_b = _moved_row_major(_master(tree_b), relative, dtype)
     eps_a, eps_b = _node_epsilons(tree_a, tree_b, relative, precision)
-    one, band = _constants(dtype)
+    one, band = kernel_constants(dtype)
     iterations, rtol = np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL)
     coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
     coarse = (coarse_mode, iterations, rtol, one, band)

@@ -24,6 +24,17 @@ from threading import Lock
 
 import numpy as np
 
+from .arguments import (
+    KERNELS,
+    PRECISIONS,
+    check_epsilon,
+    check_iterations,
+    check_kernel,
+    check_pairs,
+    check_precision,
+    check_triangles,
+    kernel_constants,
+)
 from .errors import InvalidArgumentError
 from .kernels import triangle_batch as tb
 
@@ -39,15 +50,12 @@ __all__ = [
     "warmup",
 ]
 
-KERNELS = {"exact": tb.EXACT, "iterative": tb.ITERATIVE, "hybrid": tb.HYBRID}
-PRECISIONS = {"float32": np.float32, "float64": np.float64}
 DEFAULT_ITERATIONS = 1
 """Sweeps of the iterative kernel. ``benchmarks/kernels.py`` (BENCHMARKS.md): one sweep
 certifies 97.5% of near pairs and gives the fastest hybrid kernel; each further sweep
 costs more than the few fallbacks it saves (2.5% at 1 sweep, 1.6% at 3, 1.1% at 8)."""
 DEFAULT_RTOL = 0.01
 """Converged when the certified gap ``U − L`` is at most ``rtol·ε`` (plus rounding)."""
-_BAND_ULPS = 64
 _SERIAL_PAIRS = 1 << 16  # below this many pairs one thread is faster than a pool
 
 
@@ -152,12 +160,12 @@ class TriangleSet:
     def __init__(
         self, triangles: np.ndarray, precision: str = "float64", name: str = "triangles"
     ) -> None:
-        dtype = _precision(precision)
-        tri = _largest_angle_first(_as_triangles(triangles, name, dtype))
+        dtype = check_precision(precision)
+        tri = _largest_angle_first(check_triangles(triangles, name, dtype))
         self.dtype = np.dtype(dtype)
         coords = np.ascontiguousarray(tri.reshape(-1, 9).T)
         frames = np.empty((14, len(tri)))
-        tb.frames_kernel(coords, frames, 1.0, float(_constants(dtype)[1]))
+        tb.frames_kernel(coords, frames, 1.0, float(kernel_constants(dtype)[1]))
         self.coords = coords.astype(dtype)
         self.frames = frames.astype(dtype)
         self.coords_rm = np.ascontiguousarray(self.coords.T)
@@ -180,7 +188,7 @@ class TriangleSet:
 
     def subset(self, index: np.ndarray, precision: str) -> TriangleSet:
         """Triangles ``index`` in ``precision`` (rounded from this set's arrays)."""
-        dtype = _precision(precision)
+        dtype = check_precision(precision)
         return TriangleSet.prepared(
             self.coords[:, index].astype(dtype), self.frames[:, index].astype(dtype)
         )
@@ -191,7 +199,7 @@ class TriangleSet:
     ) -> TriangleSet:
         """``triangles`` itself if already prepared in ``precision``, else a new set."""
         if isinstance(triangles, TriangleSet):
-            if triangles.dtype != np.dtype(_precision(precision)):
+            if triangles.dtype != np.dtype(check_precision(precision)):
                 raise InvalidArgumentError(
                     f"{name} is a {triangles.dtype.name} TriangleSet but precision={precision!r}"
                 )
@@ -247,7 +255,7 @@ def triangle_distances(
     n = len(sa)
     if len(sb) != n:
         raise InvalidArgumentError(f"a and b must pair up: {n} and {len(sb)} triangles")
-    eps = _epsilon(epsilon, n, dtype, "epsilon")
+    eps = check_epsilon(epsilon, n, dtype, "epsilon")
     distance = np.empty(n, dtype)
     lower = np.empty(n, dtype)
     point_a = np.empty((3, n), dtype)
@@ -311,8 +319,8 @@ def triangle_contacts(
     TriangleContacts
     """
     sa, sb, dtype, params = _prepare(a, b, kernel, precision, iterations, rtol)
-    eps_a = _epsilon(epsilon_a, len(sa), dtype, "epsilon_a")
-    eps_b = _epsilon(epsilon_b, len(sb), dtype, "epsilon_b")
+    eps_a = check_epsilon(epsilon_a, len(sa), dtype, "epsilon_a")
+    eps_b = check_epsilon(epsilon_b, len(sb), dtype, "epsilon_b")
     rm = (sa.coords_rm, sa.frames_rm, sb.coords_rm, sb.frames_rm)
 
     if pairs is None:
@@ -334,7 +342,7 @@ def triangle_contacts(
                 stats,
             )
     else:
-        pair_array = _pairs(pairs, len(sa), len(sb))
+        pair_array = check_pairs(pairs, len(sa), len(sb))
         n_outer = work = len(pair_array)
 
         def call(start, stop, out, stats):
@@ -431,121 +439,9 @@ def _prepare(a, b, kernel, precision, iterations, rtol) -> tuple:
 
     ``params = (mode, iterations, rtol, 1, band factor)`` in the kernels' types.
     """
-    mode = _mode(kernel)
-    dtype = _precision(precision)
+    mode = check_kernel(kernel)
+    dtype = check_precision(precision)
     sa, sb = TriangleSet.of(a, precision, "a"), TriangleSet.of(b, precision, "b")
-    iterations, rtol = _iteration_args(iterations, rtol)
-    one, band = _constants(dtype)
+    iterations, rtol = check_iterations(iterations, rtol)
+    one, band = kernel_constants(dtype)
     return sa, sb, dtype, (mode, np.int64(iterations), dtype(rtol), one, band)
-
-
-def _constants(dtype) -> tuple:
-    """``(1, 64 ulp)`` in ``dtype``: the unit, and the relative size of the rounding
-    band around ε (and of the sliver threshold on sin² of a triangle's largest angle)."""
-    return dtype(1.0), dtype(_BAND_ULPS * np.finfo(dtype).eps)
-
-
-def _mode(kernel: str) -> int:
-    try:
-        return KERNELS[kernel]
-    except (KeyError, TypeError):
-        raise InvalidArgumentError(
-            f"kernel must be one of {sorted(KERNELS)}, got {kernel!r}"
-        ) from None
-
-
-def _precision(precision: str):
-    try:
-        return PRECISIONS[precision]
-    except (KeyError, TypeError):
-        raise InvalidArgumentError(
-            f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}"
-        ) from None
-
-
-def _as_triangles(x, name: str, dtype=np.float64) -> np.ndarray:
-    """``x`` as a finite (n, 3, 3) float64 array whose coordinates ``dtype`` can square."""
-    if np.iscomplexobj(x):
-        raise InvalidArgumentError(f"{name} must be real, got complex values")
-    try:
-        arr = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidArgumentError(f"{name} must be a numeric (n, 3, 3) array: {exc}") from None
-    if arr.ndim != 3 or arr.shape[1:] != (3, 3):
-        raise InvalidArgumentError(f"{name} must have shape (n, 3, 3), got {arr.shape}")
-    finite = np.isfinite(arr).reshape(len(arr), 9).all(axis=1)
-    if not finite.all():
-        bad = int(np.flatnonzero(~finite)[0])
-        raise InvalidArgumentError(f"{name} has a non-finite coordinate in triangle {bad}")
-    limit = _coordinate_limit(dtype)
-    if arr.size and np.abs(arr).max() > limit:
-        bad = int(np.flatnonzero(np.abs(arr).reshape(len(arr), 9).max(axis=1) > limit)[0])
-        raise InvalidArgumentError(
-            f"{name} has a coordinate beyond ±{limit:.3g} in triangle {bad}: squared "
-            f"distances would overflow {np.dtype(dtype).name}"
-        )
-    return arr
-
-
-def _coordinate_limit(dtype) -> float:
-    """Largest coordinate magnitude whose squared differences stay finite in ``dtype``."""
-    return float(np.sqrt(np.finfo(dtype).max) * 1e-4)
-
-
-def _epsilon(eps, n: int, dtype, name: str) -> np.ndarray:
-    if np.iscomplexobj(eps):
-        raise InvalidArgumentError(f"{name} must be real, got complex values")
-    try:
-        arr = np.asarray(eps, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidArgumentError(
-            f"{name} must be a non-negative number or a ({n},) array, got {eps!r}"
-        ) from None
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    if arr.shape != (n,):
-        raise InvalidArgumentError(f"{name} must be a scalar or shape ({n},), got {arr.shape}")
-    if not (np.isfinite(arr).all() and (arr >= 0).all()):
-        raise InvalidArgumentError(f"{name} must be finite and non-negative")
-    if arr.size and arr.max() > _coordinate_limit(dtype):
-        raise InvalidArgumentError(f"{name} is too large for {np.dtype(dtype).name}")
-    return arr.astype(dtype)
-
-
-def _iteration_args(iterations, rtol) -> tuple[int, float]:
-    if (
-        isinstance(iterations, bool | np.bool_)
-        or not isinstance(iterations, int | np.integer)
-        or not 1 <= iterations <= 64
-    ):
-        raise InvalidArgumentError(f"iterations must be an integer in [1, 64], got {iterations!r}")
-    try:
-        value = float(rtol)
-    except (TypeError, ValueError):
-        value = float("nan")
-    if isinstance(rtol, bool | np.bool_) or not (np.isfinite(value) and value >= 0):
-        raise InvalidArgumentError(f"rtol must be finite and non-negative, got {rtol!r}")
-    return int(iterations), value
-
-
-def _pairs(pairs, na: int, nb: int) -> np.ndarray:
-    """Validate index pairs; returns a C-contiguous ``(k, 2)`` int64 array."""
-    arr = np.asarray(pairs)
-    if arr.size == 0:
-        return np.zeros((0, 2), np.int64)
-    if arr.ndim != 2 or arr.shape[1] != 2 or not np.issubdtype(arr.dtype, np.integer):
-        raise InvalidArgumentError(
-            f"pairs must be an integer (k, 2) array, got {arr.dtype} {arr.shape}"
-        )
-    if np.issubdtype(arr.dtype, np.unsignedinteger) and arr.max() > np.iinfo(np.int64).max:
-        raise InvalidArgumentError(
-            f"pairs index out of range: a has {na} and b has {nb} triangles, got {arr.max()}"
-        )
-    arr = np.ascontiguousarray(arr, dtype=np.int64)
-    lo, hi_a, hi_b = tb.pair_bounds(arr)
-    if lo < 0 or hi_a >= na or hi_b >= nb:
-        raise InvalidArgumentError(
-            f"pairs index out of range: a has {na} and b has {nb} triangles; the pairs hold "
-            f"indices from {lo} up to {hi_a} (into a) and {hi_b} (into b)"
-        )
-    return arr
