@@ -39,6 +39,7 @@ from .distance import (
 )
 from .errors import InvalidArgumentError
 from .kernels import triangle_batch as tb
+from .kernels.contact_merge import merge_kernel
 from .kernels.traversal import traverse_kernel
 from .pose import Pose
 from .tree import SurrogateTree
@@ -344,26 +345,21 @@ def _contact_points(tree_a, tree_b, pairs, distance, p, q):
 
 
 def _merge(points, normals, overlaps, radius):
-    """Greedy merge of points closer than ``radius`` into their averages."""
+    """Merge points closer than ``radius`` into their averages (greedy, deepest first):
+    normals averaged and renormalised (a cancelling sum keeps the cluster's first normal),
+    overlaps averaged."""
     if len(points) <= 1 or radius <= 0:
         return points, normals, overlaps
-    label = np.full(len(points), -1)
-    centres: list[np.ndarray] = []
-    for k in np.argsort(-overlaps, kind="stable"):
-        if centres:
-            d = np.linalg.norm(np.array(centres) - points[k], axis=1)
-            j = int(d.argmin())
-            if d[j] < radius:
-                label[k] = j
-                continue
-        label[k] = len(centres)
-        centres.append(points[k])
-    n = len(centres)
+    order = np.argsort(-overlaps, kind="stable").astype(np.int64)
+    label = np.empty(len(points), np.int64)
+    centres = np.empty_like(points)
+    n = merge_kernel(points, normals, overlaps, order, float(radius), label, centres)
     count = np.bincount(label, minlength=n)[:, None]
     merged_points = np.stack([np.bincount(label, points[:, c], n) for c in range(3)], 1) / count
     summed = np.stack([np.bincount(label, normals[:, c], n) for c in range(3)], 1)
     norms = np.linalg.norm(summed, axis=1, keepdims=True)
-    first = np.array([normals[np.flatnonzero(label == j)[0]] for j in range(n)])
+    first = np.empty((n, 3))
+    first[label[order[::-1]]] = normals[order[::-1]]  # the first visited point wins
     merged_normals = np.where(norms > 1e-12, summed / np.where(norms > 0, norms, 1), first)
     merged_overlaps = np.bincount(label, overlaps, n) / count[:, 0]
     return merged_points, merged_normals, merged_overlaps

@@ -155,3 +155,21 @@ def test_unknown_traversal_is_rejected(trees):
         find_contacts(
             trees["box"], Pose.identity(), trees["box"], Pose.identity(), traversal="depth-first"
         )
+
+
+def test_merge_averages_clusters_of_close_points():
+    from engine.contacts import _merge
+
+    points = np.array([[0, 0, 0], [0.004, 0, 0], [1, 0, 0], [1, 0.004, 0], [5, 5, 5]], float)
+    normals = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [1, 0, 0]], float)
+    overlaps = np.array([0.02, 0.01, 0.015, 0.005, 0.001])
+    p, n, o = _merge(points, normals, overlaps, radius=0.01)
+    assert len(p) == 3  # clusters {0, 1}, {2, 3}, {4}; deepest first
+    np.testing.assert_allclose(p[0], [0.002, 0, 0])
+    np.testing.assert_allclose(n[0], [np.sqrt(0.5), np.sqrt(0.5), 0])
+    np.testing.assert_allclose(o[0], 0.015)
+    np.testing.assert_allclose(p[1], [1, 0.002, 0])
+    np.testing.assert_allclose(n[1], [0, 0, 1])  # cancelling normals: the deepest point's
+    np.testing.assert_allclose(o[1], 0.01)
+    np.testing.assert_allclose(p[2], [5, 5, 5])
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
