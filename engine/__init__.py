@@ -14,12 +14,12 @@ from .distance import (
     TriangleSet,
     triangle_contacts,
     triangle_distances,
-    warmup,
 )
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
 from .mesh import MassProperties, Mesh, load_mesh
 from .pose import Pose
 from .tree import SurrogateTree, TreeStats, build_tree
+from .warmup import warmup
 
 __all__ = [
     "ContactSet",

@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "info":
         print(json.dumps(_info(), indent=2))
     elif args.command == "warmup":
-        from .distance import warmup
+        from .warmup import warmup
 
         print(f"kernels ready in {warmup():.2f} s")
     return 0

@@ -25,8 +25,6 @@ from threading import Lock
 import numpy as np
 
 from .arguments import (
-    KERNELS,
-    PRECISIONS,
     check_epsilon,
     check_iterations,
     check_kernel,
@@ -47,7 +45,6 @@ __all__ = [
     "TriangleSet",
     "triangle_contacts",
     "triangle_distances",
-    "warmup",
 ]
 
 DEFAULT_ITERATIONS = 1
@@ -371,26 +368,6 @@ def triangle_contacts(
         status=cat[5],
         stats=KernelStats.from_array(stats),
     )
-
-
-def warmup() -> float:
-    """Compile (or load from the on-disk cache) every kernel in both precisions.
-
-    Returns the seconds it took. The service calls this before it reports ready.
-    """
-    import time
-
-    start = time.perf_counter()
-    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
-    for precision in PRECISIONS:
-        sa = TriangleSet(tri, precision)
-        for kernel in KERNELS:
-            triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
-            triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
-            triangle_contacts(
-                sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
-            )
-    return time.perf_counter() - start
 
 
 # ----------------------------------------------------------------------------- helpers

@@ -1,0 +1,43 @@
+"""Compile (or load from the cache) every kernel, as the service does before it is ready."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .arguments import KERNELS, PRECISIONS
+from .contacts import find_contacts
+from .distance import TriangleSet, triangle_contacts, triangle_distances
+from .pose import Pose
+from .shapes import box
+from .tree import build_tree
+
+__all__ = ["warmup"]
+
+
+def warmup() -> float:
+    """Run every kernel once on tiny inputs in both precisions; returns the seconds taken."""
+    start = time.perf_counter()
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
+    tree = build_tree(box(), 0.05)
+    near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    for precision in PRECISIONS:
+        sa = TriangleSet(tri, precision)
+        for kernel in KERNELS:
+            triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
+            triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
+            triangle_contacts(
+                sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
+            )
+            for hierarchy in (True, False):
+                find_contacts(
+                    tree,
+                    Pose.identity(),
+                    tree,
+                    near,
+                    kernel=kernel,
+                    hierarchy=hierarchy,
+                    precision=precision,
+                )
+    return time.perf_counter() - start
