@@ -205,7 +205,7 @@ def _hierarchical(tree_a, tree_b, relative, kernel, precision):
         out = _contact_buffers(capacity, dtype)
         stats = np.zeros(tb.N_STATS, np.int64)
         levels = np.zeros(64, np.int64)
-        count, depth = traverse_kernel(
+        count, depth, unfoldings = traverse_kernel(
             rm, eps_a, eps_b, trees[0], trees[1], coarse, leaf, out, stats, levels
         )
         if count <= capacity:
@@ -214,7 +214,12 @@ def _hierarchical(tree_a, tree_b, relative, kernel, precision):
     nodes = np.stack([out[0][:count], out[1][:count]], axis=1)
     faces = np.stack([tree_a.face[nodes[:, 0]], tree_b.face[nodes[:, 1]]], axis=1)
     per_level = tuple(int(x) for x in levels[: min(depth, len(levels))])
-    counters = (per_level, int(stats[tb.STAT_ITERATIVE]), int(stats[tb.STAT_FALLBACKS]), 0)
+    counters = (
+        per_level,
+        int(stats[tb.STAT_ITERATIVE]),
+        int(stats[tb.STAT_FALLBACKS]),
+        int(unfoldings),
+    )
     return faces.astype(np.int64), _Results(out, count), counters
 
 
@@ -240,7 +245,7 @@ def _active_sets(tree_a, tree_b, relative, kernel, precision):
     eps_a, eps_b = _node_epsilons(tree_a, tree_b, relative, precision)
     surrogate_kernel = "exact" if kernel == "exact" else "iterative"
     active_a, active_b = np.zeros(1, np.int64), np.zeros(1, np.int64)
-    found, per_level, iterative, fallbacks = [], [], 0, 0
+    found, per_level, iterative, fallbacks, unfoldings = [], [], 0, 0, 0
     while len(active_a) and len(active_b):
         grid = np.stack(np.meshgrid(active_a, active_b, indexing="ij"), -1).reshape(-1, 2)
         per_level.append(len(grid))
@@ -270,13 +275,14 @@ def _active_sets(tree_a, tree_b, relative, kernel, precision):
         )
         iterative += res.stats.iterative
         hits = res.pairs
+        unfoldings += len(hits)
         active_a = _unfold_set(tree_a, hits[:, 0])
         active_b = _unfold_set(tree_b, hits[:, 1])
     pairs = np.concatenate([r.pairs for r in found]) if found else np.zeros((0, 2), np.int64)
     first = np.unique(pairs, axis=0, return_index=True)[1]  # a leaf pair may recur
     out = _Stacked(found, first)
     faces = np.stack([tree_a.face[pairs[first, 0]], tree_b.face[pairs[first, 1]]], axis=1)
-    return faces.astype(np.int64), out, (tuple(per_level), iterative, fallbacks, 0)
+    return faces.astype(np.int64), out, (tuple(per_level), iterative, fallbacks, unfoldings)
 
 
 def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
@@ -353,7 +359,7 @@ def _merge(points, normals, overlaps, radius):
     order = np.argsort(-overlaps, kind="stable").astype(np.int64)
     label = np.empty(len(points), np.int64)
     centres = np.empty_like(points)
-    n = merge_kernel(points, normals, overlaps, order, float(radius), label, centres)
+    n = merge_kernel(points, order, float(radius), label, centres)
     count = np.bincount(label, minlength=n)[:, None]
     merged_points = np.stack([np.bincount(label, points[:, c], n) for c in range(3)], 1) / count
     summed = np.stack([np.bincount(label, normals[:, c], n) for c in range(3)], 1)

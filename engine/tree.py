@@ -25,6 +25,7 @@ surrogate), all saved in one versioned ``.npz``.
 from __future__ import annotations
 
 import io
+import os
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -144,8 +145,6 @@ class SurrogateTree:
             with open(tmp, "wb") as fh:
                 np.savez(fh, meta=meta, **payload)
                 fh.flush()
-                import os
-
                 os.fsync(fh.fileno())
             tmp.replace(path)
         else:

@@ -8,13 +8,13 @@ from .jit import JIT
 
 
 @njit(**JIT)
-def merge_kernel(points, normals, overlaps, order, radius, label, centres):
+def merge_kernel(points, order, radius, label, centres):
     """Cluster contact points, visiting them in ``order``; returns the cluster count.
 
     A point joins the nearest existing cluster whose first point lies closer than
     ``radius``, else it starts a cluster. Writes ``label (k,)`` and the clusters'
-    first points to ``centres (k, 3)``. Inputs: ``points, normals (k, 3)``,
-    ``overlaps (k,)`` float64, ``order (k,)`` int64.
+    first points to ``centres (k, 3)``. Inputs: ``points (k, 3)`` float64,
+    ``order (k,)`` int64.
     """
     m = 0
     limit = radius * radius
@@ -34,5 +34,4 @@ def merge_kernel(points, normals, overlaps, order, radius, label, centres):
             best = m
             m += 1
         label[k] = best
-    _ = normals, overlaps
     return m

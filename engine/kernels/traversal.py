@@ -21,7 +21,7 @@ from .triangle_batch import ZERO, listed_kernel
 def traverse_kernel(
     rm, eps_a, eps_b, tree_a, tree_b, coarse_params, leaf_params, out, stats, levels
 ):
-    """Contacts between two trees; returns ``(count, number of levels)``.
+    """Contacts between two trees; returns ``(count, number of levels, unfoldings)``.
 
     ``rm`` = row-major (coords, frames) of A's nodes and of B's nodes (in A's frame);
     ``eps_a, eps_b (N,)`` per-node ε; ``tree_* = (face, first_child, child_count)``
@@ -35,6 +35,7 @@ def traverse_kernel(
     front = np.zeros((1, 2), np.int64)
     n = ZERO
     depth = ZERO
+    unfoldings = ZERO
     while front.shape[0] > 0:
         m = front.shape[0]
         if depth < levels.shape[0]:
@@ -66,6 +67,7 @@ def traverse_kernel(
         )
         h = listed_kernel(rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, hits, ZERO, stats)
         hi, hj = hits[0], hits[1]
+        unfoldings += h
         size = ZERO
         for k in range(h):
             i, j = hi[k], hj[k]
@@ -85,4 +87,4 @@ def traverse_kernel(
                 for c in range(first_b[j], first_b[j] + count_b[j]):
                     front[r, 0], front[r, 1] = i, c
                     r += 1
-    return n, depth
+    return n, depth, unfoldings

@@ -173,3 +173,17 @@ def test_merge_averages_clusters_of_close_points():
     np.testing.assert_allclose(o[1], 0.01)
     np.testing.assert_allclose(p[2], [5, 5, 5])
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+
+
+@pytest.mark.parametrize("traversal", ["pairs", "sets"])
+def test_statistics_count_the_work(trees, traversal):
+    ta = tb = trees["torus"]
+    pa, pb = Pose.identity(), Pose([0.9, 0.2, 0.0], [1, 0, 0, 0])
+    tree = find_contacts(ta, pa, tb, pb, traversal=traversal)
+    flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False)
+    assert len(tree.pairs) > 0
+    # every level after the root pair exists because some node pair was unfolded
+    assert tree.stats.unfoldings >= len(tree.stats.comparisons_per_level) - 1 >= 1
+    assert tree.stats.comparisons == sum(tree.stats.comparisons_per_level) < flat.stats.comparisons
+    leaves = int((ta.face >= 0).sum()) * int((tb.face >= 0).sum())
+    assert flat.stats.unfoldings == 0 and flat.stats.comparisons == leaves
