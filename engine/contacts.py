@@ -34,19 +34,22 @@ from .distance import (
     DEFAULT_ITERATIONS,
     DEFAULT_RTOL,
     TriangleSet,
-    _contact_buffers,
     triangle_contacts,
 )
 from .errors import InvalidArgumentError
 from .kernels import triangle_batch as tb
-from .kernels.contact_merge import merge_kernel
-from .kernels.traversal import traverse_kernel
+from .kernels.contact_merge import contact_kernel
+from .kernels.rigid import margin_kernel, move_kernel
+from .kernels.traversal import query_kernel
 from .pose import Pose
 from .tree import SurrogateTree
 
 __all__ = ["ContactSet", "ContactStats", "find_contacts"]
 
 _MARGIN_ULPS = 256
+_ULP = {np.float32: float(np.finfo(np.float32).eps), np.float64: float(np.finfo(np.float64).eps)}
+_SQRT3 = float(np.sqrt(3.0))
+_TINY = 1e3 * float(np.finfo(np.float32).eps)  # relative gap below which p and q coincide
 
 
 @dataclass(frozen=True)
@@ -127,27 +130,51 @@ def find_contacts(
         if not isinstance(pose, Pose):
             raise InvalidArgumentError(f"{name} must be a Pose")
     check_kernel(kernel), check_precision(precision)  # validate before any work
-    relative = pose_a.inverse().compose(pose_b)
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
-    if hierarchy and traversal == "sets":
-        pairs, res, stats = _active_sets(tree_a, tree_b, relative, kernel, precision)
-    elif hierarchy:
-        pairs, res, stats = _hierarchical(tree_a, tree_b, relative, kernel, precision)
+    pose = _relative(pose_a, pose_b)
+    contact = _contact_setup(tree_a, tree_b, pose_a, kernel)
+    if hierarchy and traversal == "pairs":
+        result, counters = _hierarchical(tree_a, tree_b, pose, contact, kernel, precision)
     else:
-        pairs, res, stats = _flat(tree_a, tree_b, relative, kernel, precision)
-    contact = res.status == 1 if kernel == "iterative" else np.ones(len(pairs), bool)
-    pairs, distance = pairs[contact], res.distance[contact].astype(np.float64)
-    p, q = res.point_a[contact].astype(np.float64), res.point_b[contact].astype(np.float64)
-    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
-    pairs, distance, p, q = pairs[order], distance[order], p[order], q[order]
-    points, normals, overlaps = _contact_points(tree_a, tree_b, pairs, distance, p, q)
-    points, normals, overlaps = _merge(
-        points, normals, overlaps, min(tree_a.leaf_epsilon, tree_b.leaf_epsilon)
-    )
-    stats = ContactStats(stats[0], stats[1], stats[2], stats[3], len(pairs), len(points))
-    rot = pose_a.rotation
-    return ContactSet(pairs, points @ rot.T + pose_a.position, normals @ rot.T, overlaps, stats)
+        search = _active_sets if hierarchy else _flat
+        found, count, face_a, face_b, counters = search(tree_a, tree_b, pose, kernel, precision)
+        result = (
+            np.empty((count, 2), np.int64),
+            np.empty((count, 3)),
+            np.empty((count, 3)),
+            np.empty(count),
+        )
+        m, k = contact_kernel(found, count, face_a, face_b, *contact, result)
+        result = (result[0][:m], result[1][:k], result[2][:k], result[3][:k])
+    stats = ContactStats(*counters, len(result[0]), len(result[1]))
+    return ContactSet(*result, stats)
+
+
+def _relative(pose_a: Pose, pose_b: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation ``(3, 3)`` and shift ``(3,)`` of ``pose_a⁻¹ ∘ pose_b`` (B's frame to A's)."""
+    rot_t = pose_a.rotation.T
+    return rot_t @ pose_b.rotation, rot_t @ (pose_b.position - pose_a.position)
+
+
+def _contact_setup(tree_a, tree_b, pose_a: Pose, kernel: str) -> tuple:
+    """The ``contact_kernel`` arguments after the found pairs and their face maps."""
+    ea, eb = tree_a.leaf_epsilon, tree_b.leaf_epsilon
+    tiny = _TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
+    setup = (ea, eb, tiny, min(ea, eb), pose_a.rotation, pose_a.position)
+    return len(_face_nodes(tree_b)), kernel != "iterative", _face_normals(tree_a), setup
+
+
+def _moved(tree: SurrogateTree, pose, index: np.ndarray, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major ``(N, 9)`` coordinates and ``(N, 14)`` frames of ``tree``'s nodes, of which
+    rows ``index`` are moved rigidly by ``pose`` (frame vectors rotate, scalars stay) and
+    rounded to ``dtype`` (the other rows are undefined). ``move_kernel`` does the moving,
+    as in the multiresolution search: leaf inputs are identical (Invariant 1)."""
+    master = _master(tree)
+    coords = np.empty(master.coords_rm.shape, dtype)
+    frames = np.empty(master.frames_rm.shape, dtype)
+    move_kernel(master.coords_rm, master.frames_rm, index, *pose, coords, frames)
+    return coords, frames
 
 
 def _face_nodes(tree: SurrogateTree) -> np.ndarray:
@@ -165,16 +192,39 @@ def _master(tree: SurrogateTree) -> TriangleSet:
     return tree.__dict__["_master"]
 
 
-def _flat(tree_a, tree_b, relative, kernel, precision):
-    # B's leaves moved exactly as the hierarchical search moves them: leaf pairs are
-    # then evaluated on bit-identical inputs by both searches
-    sa = _master(tree_a).subset(_face_nodes(tree_a), precision)
-    coords_b, frames_b = _moved_row_major(_master(tree_b), relative, np.dtype(precision).type)
+def _face_normals(tree: SurrogateTree) -> np.ndarray:
+    """(F, 3) float64 unit normals of the faces, in the body frame (cached on the tree)."""
+    if "_face_normals" not in tree.__dict__:
+        face = tree.triangles[_face_nodes(tree)]
+        normal = np.cross(face[:, 1] - face[:, 0], face[:, 2] - face[:, 0])
+        tree.__dict__["_face_normals"] = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    return tree.__dict__["_face_normals"]
+
+
+def _node_set(tree: SurrogateTree, precision: str, leaves_only: bool) -> TriangleSet:
+    """All nodes (or the leaves, in face order) of ``tree`` prepared in ``precision``
+    (cached on the tree)."""
+    cache = tree.__dict__.setdefault("_node_sets", {})
+    key = (precision, leaves_only)
+    if key not in cache:
+        index = _face_nodes(tree) if leaves_only else np.arange(len(tree))
+        cache[key] = _master(tree).subset(index, precision)
+    return cache[key]
+
+
+def _faces(tree: SurrogateTree) -> np.ndarray:
+    """(F,) int32 0 … F−1: the face of each leaf when leaves are indexed in face order."""
+    if "_faces" not in tree.__dict__:
+        tree.__dict__["_faces"] = np.arange(len(_face_nodes(tree)), dtype=np.int32)
+    return tree.__dict__["_faces"]
+
+
+def _flat(tree_a, tree_b, pose, kernel, precision):
     leaves = _face_nodes(tree_b)
-    sb = TriangleSet.prepared(coords_b[leaves].T, frames_b[leaves].T)
+    coords, frames = _moved(tree_b, pose, leaves, np.dtype(precision).type)
     res = triangle_contacts(
-        sa,
-        sb,
+        _node_set(tree_a, precision, True),
+        TriangleSet.prepared(coords[leaves].T, frames[leaves].T),
         tree_a.leaf_epsilon,
         tree_b.leaf_epsilon,
         kernel=kernel,
@@ -182,107 +232,103 @@ def _flat(tree_a, tree_b, relative, kernel, precision):
         threads=1,
     )
     s = res.stats
-    return res.pairs, res, ((s.pairs,), s.iterative, s.fallbacks, 0)
+    found = _found(res.pairs, res)
+    return (
+        found,
+        len(res),
+        _faces(tree_a),
+        _faces(tree_b),
+        ((s.pairs,), s.iterative, s.fallbacks, 0),
+    )
 
 
-def _hierarchical(tree_a, tree_b, relative, kernel, precision):
+def _found(pairs: np.ndarray, res) -> tuple:
+    """The kernels' result layout from a :class:`TriangleContacts`-like result."""
+    return (
+        np.ascontiguousarray(pairs[:, 0]),
+        np.ascontiguousarray(pairs[:, 1]),
+        res.distance,
+        np.ascontiguousarray(res.point_a.T),
+        np.ascontiguousarray(res.point_b.T),
+        res.status,
+    )
+
+
+def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
     dtype = np.dtype(precision).type
-    cache = tree_a.__dict__.setdefault("_node_sets", {})
-    if precision not in cache:
-        cache[precision] = _master(tree_a).subset(np.arange(len(tree_a)), precision)
-    sa = cache[precision]
-    coords_b, frames_b = _moved_row_major(_master(tree_b), relative, dtype)
-    eps_a, eps_b = _node_epsilons(tree_a, tree_b, relative, precision)
+    sa = _node_set(tree_a, precision, False)
+    master = _master(tree_b)
     one, band = kernel_constants(dtype)
     iterations, rtol = np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL)
     coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
     coarse = (coarse_mode, iterations, rtol, one, band)
     leaf = (KERNELS[kernel], iterations, rtol, one, band)
-    rm = (sa.coords_rm, sa.frames_rm, coords_b, frames_b)
-    trees = [(t.face, t.first_child, t.child_count) for t in (tree_a, tree_b)]
-    capacity = 1024 + 16 * max(len(tree_a), len(tree_b))
-    while True:  # count, allocate, fill: a re-run only when the first guess was short
-        out = _contact_buffers(capacity, dtype)
-        stats = np.zeros(tb.N_STATS, np.int64)
-        levels = np.zeros(64, np.int64)
-        count, depth, unfoldings = traverse_kernel(
-            rm, eps_a, eps_b, trees[0], trees[1], coarse, leaf, out, stats, levels
-        )
-        if count <= capacity:
-            break
-        capacity = count
-    nodes = np.stack([out[0][:count], out[1][:count]], axis=1)
-    faces = np.stack([tree_a.face[nodes[:, 0]], tree_b.face[nodes[:, 1]]], axis=1)
-    per_level = tuple(int(x) for x in levels[: min(depth, len(levels))])
+    body_a = (sa.coords_rm, sa.frames_rm, tree_a.epsilon, *_structure(tree_a))
+    body_b = (master.coords_rm, master.frames_rm, tree_b.epsilon, *_structure(tree_b))
+    stats = np.zeros(tb.N_STATS, np.int64)
+    levels = np.zeros(64, np.int64)
+    margin = _margin(tree_a, tree_b, pose[1], dtype)
+    depth, unfoldings, result = query_kernel(
+        body_a, body_b, pose, margin, coarse, leaf, contact, stats, levels
+    )
     counters = (
-        per_level,
+        tuple(levels[: min(depth, len(levels))].tolist()),
         int(stats[tb.STAT_ITERATIVE]),
         int(stats[tb.STAT_FALLBACKS]),
         int(unfoldings),
     )
-    return faces.astype(np.int64), _Results(out, count), counters
+    return result, counters
 
 
-def _moved_row_major(master: TriangleSet, pose: Pose, dtype) -> tuple[np.ndarray, np.ndarray]:
-    """Row-major ``(N, 9)`` coordinates and ``(N, 14)`` frames of ``master`` moved by
-    ``pose`` (frame vectors rotate, scalars stay), rounded to ``dtype`` in one pass."""
-    rot = pose.rotation
-    coords = master.coords_rm.reshape(-1, 3, 3) @ rot.T + pose.position
-    frames = master.frames_rm.copy()
-    frames[:, :9] = (master.frames_rm[:, :9].reshape(-1, 3, 3) @ rot.T).reshape(-1, 9)
-    return (
-        np.ascontiguousarray(coords.reshape(-1, 9), dtype=dtype),
-        np.ascontiguousarray(frames, dtype=dtype),
-    )
+def _structure(tree: SurrogateTree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return tree.face, tree.first_child, tree.child_count
 
 
-def _active_sets(tree_a, tree_b, relative, kernel, precision):
+def _active_sets(tree_a, tree_b, pose, kernel, precision):
     """Algorithm 5: compare all pairs of the active sets; unfold both nodes of a hit."""
     dtype = np.dtype(precision).type
-    sa = _master(tree_a).subset(np.arange(len(tree_a)), precision)
-    coords_b, frames_b = _moved_row_major(_master(tree_b), relative, dtype)
-    sb = TriangleSet.prepared(coords_b.T, frames_b.T)
-    eps_a, eps_b = _node_epsilons(tree_a, tree_b, relative, precision)
+    sa = _node_set(tree_a, precision, False)
+    sb = TriangleSet.prepared(*(x.T for x in _moved(tree_b, pose, np.arange(len(tree_b)), dtype)))
+    margin = _margin(tree_a, tree_b, pose[1], dtype)
+    eps_a, eps_b = np.empty(len(tree_a), dtype), np.empty(len(tree_b), dtype)
+    margin_kernel(tree_a.epsilon, tree_a.face, margin, eps_a)
+    margin_kernel(tree_b.epsilon, tree_b.face, margin, eps_b)
     surrogate_kernel = "exact" if kernel == "exact" else "iterative"
     active_a, active_b = np.zeros(1, np.int64), np.zeros(1, np.int64)
     found, per_level, iterative, fallbacks, unfoldings = [], [], 0, 0, 0
+
+    def contacts(grid, kernel):
+        return triangle_contacts(
+            sa, sb, eps_a, eps_b, pairs=grid, kernel=kernel, precision=precision, threads=1
+        )
+
     while len(active_a) and len(active_b):
         grid = np.stack(np.meshgrid(active_a, active_b, indexing="ij"), -1).reshape(-1, 2)
         per_level.append(len(grid))
         finest = (tree_a.face[grid[:, 0]] >= 0) & (tree_b.face[grid[:, 1]] >= 0)
         if finest.any():
-            res = triangle_contacts(
-                sa,
-                sb,
-                eps_a,
-                eps_b,
-                pairs=grid[finest],
-                kernel=kernel,
-                precision=precision,
-                threads=1,
-            )
+            res = contacts(grid[finest], kernel)
             found.append(res)
             iterative, fallbacks = iterative + res.stats.iterative, fallbacks + res.stats.fallbacks
-        res = triangle_contacts(
-            sa,
-            sb,
-            eps_a,
-            eps_b,
-            pairs=grid[~finest],
-            kernel=surrogate_kernel,
-            precision=precision,
-            threads=1,
-        )
+        res = contacts(grid[~finest], surrogate_kernel)
         iterative += res.stats.iterative
         hits = res.pairs
         unfoldings += len(hits)
         active_a = _unfold_set(tree_a, hits[:, 0])
         active_b = _unfold_set(tree_b, hits[:, 1])
-    pairs = np.concatenate([r.pairs for r in found]) if found else np.zeros((0, 2), np.int64)
-    first = np.unique(pairs, axis=0, return_index=True)[1]  # a leaf pair may recur
-    out = _Stacked(found, first)
-    faces = np.stack([tree_a.face[pairs[first, 0]], tree_b.face[pairs[first, 1]]], axis=1)
-    return faces.astype(np.int64), out, (tuple(per_level), iterative, fallbacks, unfoldings)
+    if not found:
+        found = [contacts(np.zeros((0, 2), np.int64), kernel)]
+    pairs = np.concatenate([r.pairs for r in found])
+    keep = np.unique(pairs, axis=0, return_index=True)[1]  # a leaf pair may recur
+
+    class Stacked:  # the found rows ``keep``, concatenated
+        distance, point_a, point_b, status = (
+            np.concatenate([getattr(r, name) for r in found])[keep]
+            for name in ("distance", "point_a", "point_b", "status")
+        )
+
+    counters = (tuple(per_level), iterative, fallbacks, unfoldings)
+    return _found(pairs[keep], Stacked), len(keep), tree_a.face, tree_b.face, counters
 
 
 def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
@@ -296,76 +342,17 @@ def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
     return np.unique(np.concatenate([leaves, children]))
 
 
-class _Stacked:
-    """Per-pair arrays of several TriangleContacts results, concatenated, rows ``keep``."""
-
-    def __init__(self, parts, keep) -> None:
-        def cat(name, shape):
-            arrays = [getattr(p, name) for p in parts]
-            return (np.concatenate(arrays) if arrays else np.zeros(shape))[keep]
-
-        self.distance = cat("distance", (0,))
-        self.point_a = cat("point_a", (0, 3))
-        self.point_b = cat("point_b", (0, 3))
-        self.status = cat("status", (0,)).astype(np.int8)
+def _extent(tree: SurrogateTree) -> float:
+    """Largest absolute coordinate of ``tree``'s nodes in its body frame (cached)."""
+    if "_extent" not in tree.__dict__:
+        tree.__dict__["_extent"] = float(np.abs(tree.triangles).max())
+    return tree.__dict__["_extent"]
 
 
-def _node_epsilons(tree_a, tree_b, relative, precision):
-    """Per-node ε with the safety margin on surrogates (see the module docstring)."""
-    dtype = np.dtype(precision).type
-    scale = 2 * (tree_a.bounding_radius + tree_b.bounding_radius) + np.linalg.norm(
-        relative.position
-    )
-    margin = _MARGIN_ULPS * np.finfo(precision).eps * scale
-    eps_a = (tree_a.epsilon + np.where(tree_a.face < 0, margin, 0.0)).astype(dtype)
-    eps_b = (tree_b.epsilon + np.where(tree_b.face < 0, margin, 0.0)).astype(dtype)
-    return eps_a, eps_b
-
-
-class _Results:
-    """Per-pair arrays of a kernel's output buffers, trimmed to ``count``."""
-
-    def __init__(self, out, count: int) -> None:
-        self.distance = out[2][:count]
-        self.point_a = out[3][:, :count].T
-        self.point_b = out[4][:, :count].T
-        self.status = out[5][:count]
-
-
-def _contact_points(tree_a, tree_b, pairs, distance, p, q):
-    """Contact points, unit normals A→B and overlaps in A's frame, one per pair."""
-    ea, eb = tree_a.leaf_epsilon, tree_b.leaf_epsilon
-    weight = 0.5 if ea + eb == 0 else ea / (ea + eb)
-    points = p + weight * (q - p)
-    gap = q - p
-    length = np.linalg.norm(gap, axis=1)
-    tiny = 1e3 * np.finfo(np.float32).eps * max(tree_a.bounding_radius, tree_b.bounding_radius)
-    face = tree_a.triangles[_face_nodes(tree_a)[pairs[:, 0]]]
-    face_normal = np.cross(face[:, 1] - face[:, 0], face[:, 2] - face[:, 0])
-    # decide on the points' own gap: a (float32) distance can be positive while the
-    # two points round to the same coordinates
-    normals = np.where((length > tiny)[:, None], gap, face_normal)
-    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    overlaps = np.clip(ea + eb - distance, 0.0, ea + eb)
-    return points, normals, overlaps
-
-
-def _merge(points, normals, overlaps, radius):
-    """Merge points closer than ``radius`` into their averages (greedy, deepest first):
-    normals averaged and renormalised (a cancelling sum keeps the cluster's first normal),
-    overlaps averaged."""
-    if len(points) <= 1 or radius <= 0:
-        return points, normals, overlaps
-    order = np.argsort(-overlaps, kind="stable").astype(np.int64)
-    label = np.empty(len(points), np.int64)
-    centres = np.empty_like(points)
-    n = merge_kernel(points, order, float(radius), label, centres)
-    count = np.bincount(label, minlength=n)[:, None]
-    merged_points = np.stack([np.bincount(label, points[:, c], n) for c in range(3)], 1) / count
-    summed = np.stack([np.bincount(label, normals[:, c], n) for c in range(3)], 1)
-    norms = np.linalg.norm(summed, axis=1, keepdims=True)
-    first = np.empty((n, 3))
-    first[label[order[::-1]]] = normals[order[::-1]]  # the first visited point wins
-    merged_normals = np.where(norms > 1e-12, summed / np.where(norms > 0, norms, 1), first)
-    merged_overlaps = np.bincount(label, overlaps, n) / count[:, 0]
-    return merged_points, merged_normals, merged_overlaps
+def _margin(tree_a, tree_b, shift: np.ndarray, dtype) -> float:
+    """Safety margin on surrogate ε (see the module docstring): 256 ulp of the pair's
+    scale, which bounds every coordinate in A's frame — B's shift plus both bodies'
+    extents about their own origins (a rotation stretches a max-norm by at most √3)."""
+    extents = _extent(tree_a) + _extent(tree_b)
+    scale = 2 * (_SQRT3 * extents + float(np.sqrt(shift @ shift)))
+    return _MARGIN_ULPS * _ULP[dtype] * scale

@@ -343,8 +343,9 @@ def triangle_contacts(
         n_outer = work = len(pair_array)
 
         def call(start, stop, out, stats):
+            buffers = tb.listed_workspace(sa.coords_rm)
             return tb.listed_kernel(
-                rm, eps_a, eps_b, pair_array, start, stop, params, out, tb.ZERO, stats
+                rm, eps_a, eps_b, pair_array, start, stop, params, buffers, out, tb.ZERO, stats
             )
 
     def run(start: int, stop: int):

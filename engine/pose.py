@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -35,24 +36,28 @@ class Pose:
             raise InvalidArgumentError(
                 f"orientation must be a unit quaternion (w, x, y, z); its norm is {norm:.6g}"
             )
+        q = q / norm
+        p.flags.writeable = q.flags.writeable = False  # the rotation is cached
         object.__setattr__(self, "position", p)
-        object.__setattr__(self, "orientation", q / norm)
+        object.__setattr__(self, "orientation", q)
 
     @classmethod
     def identity(cls) -> Pose:
         return cls(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
 
-    @property
+    @cached_property
     def rotation(self) -> np.ndarray:
-        """(3, 3) float64 rotation matrix."""
+        """(3, 3) float64 rotation matrix (read-only)."""
         w, x, y, z = self.orientation
-        return np.array(
+        rot = np.array(
             [
                 [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
                 [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
                 [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
             ]
         )
+        rot.flags.writeable = False
+        return rot
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Body-frame ``points (..., 3)`` to the world frame."""
@@ -80,7 +85,7 @@ class Pose:
 
 def _vector(value, n: int, name: str) -> np.ndarray:
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        arr = np.array(value, dtype=np.float64)  # a copy: the pose owns it
     except (TypeError, ValueError):
         raise InvalidArgumentError(f"{name} must be {n} numbers, got {value!r}") from None
     if arr.shape != (n,) or not np.isfinite(arr).all():

@@ -1,4 +1,9 @@
-"""Level-synchronous multiresolution traversal of two surrogate trees (one call per query).
+"""Level-synchronous multiresolution contact query of two posed surrogate trees.
+
+One call per body pair does the whole query: B's nodes are moved into A's frame
+lazily (a node when the traversal first reaches it), surrogate ε get their
+safety margin, the front of node pairs is traversed, and the leaf pairs found
+become merged contacts.
 
 The front is a list of node pairs, starting at the two roots. Each level is split
 into leaf–leaf pairs, streamed through :func:`~engine.kernels.triangle_batch.listed_kernel`
@@ -13,26 +18,52 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .contact_merge import contact_kernel
 from .jit import JIT
-from .triangle_batch import ZERO, listed_kernel
+from .rigid import margin_kernel, move_kernel
+from .triangle_batch import ZERO, listed_kernel, listed_workspace
 
 
 @njit(**JIT)
-def traverse_kernel(
-    rm, eps_a, eps_b, tree_a, tree_b, coarse_params, leaf_params, out, stats, levels
-):
-    """Contacts between two trees; returns ``(count, number of levels, unfoldings)``.
+def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, contact, stats, levels):
+    """Contacts between two posed trees; returns ``(depth, unfoldings, result)``.
 
-    ``rm`` = row-major (coords, frames) of A's nodes and of B's nodes (in A's frame);
-    ``eps_a, eps_b (N,)`` per-node ε; ``tree_* = (face, first_child, child_count)``
-    int32 arrays (face < 0 for a surrogate). ``out`` receives the leaf–leaf results
-    (node indices) as in :func:`listed_kernel`; the count may exceed its capacity
-    (the host then re-runs). ``levels`` (int64) receives the pairs evaluated per
-    level (levels beyond its length are counted but not stored).
+    ``body_a = (coords (Na, 9), frames (Na, 14), epsilon (Na,) float64, face,
+    first_child, child_count (Na,) int32)``: A's nodes prepared in the query's
+    precision, row-major; ``body_b``: the same for B except that coordinates and
+    frames are B's float64 master arrays in its body frame. ``pose = (rotation
+    (3, 3), shift (3,))`` maps B's frame to A's. Surrogate ε get ``margin`` added.
+    ``contact = (faces of B, keep_all, normals_a, setup)`` as in
+    :func:`~engine.kernels.contact_merge.contact_kernel`. ``stats`` (int64) is
+    added to; ``levels`` (int64) receives the pairs evaluated per level (levels
+    beyond its length are counted but not stored).
+
+    ``depth`` is the number of levels, ``unfoldings`` the node pairs unfolded and
+    ``result = (pairs, points, normals, overlaps)`` the contacts, as
+    ``contact_kernel`` writes them (trimmed; world frame).
     """
-    face_a, first_a, count_a = tree_a
-    face_b, first_b, count_b = tree_b
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b = body_b
+    rotation, shift = pose
+    dtype = coords_a.dtype
+    nb = master_coords.shape[0]
+    coords_b = np.empty((nb, 9), dtype)
+    frames_b = np.empty((nb, 14), dtype)
+    moved = np.zeros(nb, np.bool_)
+    to_move = np.zeros(nb, np.int64)  # the root first
+    move_kernel(master_coords, master_frames, to_move[:1], rotation, shift, coords_b, frames_b)
+    moved[0] = True
+    eps_a = np.empty(epsilon_a.shape[0], dtype)
+    eps_b = np.empty(nb, dtype)
+    margin_kernel(epsilon_a, face_a, margin, eps_a)
+    margin_kernel(epsilon_b, face_b, margin, eps_b)
+    rm = (coords_a, frames_a, coords_b, frames_b)
+    buffers = listed_workspace(coords_a)
+    found = _buffers(256, coords_a)
+    hits = _buffers(256, coords_a)
     front = np.zeros((1, 2), np.int64)
+    finest = np.empty((256, 2), np.int64)
+    coarse = np.empty((256, 2), np.int64)
     n = ZERO
     depth = ZERO
     unfoldings = ZERO
@@ -41,8 +72,9 @@ def traverse_kernel(
         if depth < levels.shape[0]:
             levels[depth] = m
         depth += 1
-        finest = np.empty((m, 2), np.int64)
-        coarse = np.empty((m, 2), np.int64)
+        if finest.shape[0] < m:
+            finest = np.empty((2 * m, 2), np.int64)
+            coarse = np.empty((2 * m, 2), np.int64)
         nf = ZERO
         nc = ZERO
         for t in range(m):
@@ -54,18 +86,16 @@ def traverse_kernel(
                 coarse[nc, 0], coarse[nc, 1] = i, j
                 nc += 1
         if nf > 0:
-            n = listed_kernel(rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, out, n, stats)
+            found = _room(found, n, n + nf)
+            n = listed_kernel(
+                rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, buffers, found, n, stats
+            )
         if nc == 0:
             break
-        hits = (
-            np.empty(nc, np.int64),
-            np.empty(nc, np.int64),
-            np.empty(nc, out[2].dtype),
-            np.empty((3, nc), out[2].dtype),
-            np.empty((3, nc), out[2].dtype),
-            np.empty(nc, np.int8),
+        hits = _room(hits, ZERO, nc)
+        h = listed_kernel(
+            rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, buffers, hits, ZERO, stats
         )
-        h = listed_kernel(rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, hits, ZERO, stats)
         hi, hj = hits[0], hits[1]
         unfoldings += h
         size = ZERO
@@ -77,6 +107,7 @@ def traverse_kernel(
                 size += count_b[j]
         front = np.empty((size, 2), np.int64)
         r = ZERO
+        new = ZERO
         for k in range(h):
             i, j = hi[k], hj[k]
             if face_a[i] < 0 and (face_b[j] >= 0 or eps_a[i] >= eps_b[j]):
@@ -85,6 +116,54 @@ def traverse_kernel(
                     r += 1
             else:
                 for c in range(first_b[j], first_b[j] + count_b[j]):
+                    if not moved[c]:
+                        moved[c] = True
+                        to_move[new] = c
+                        new += 1
                     front[r, 0], front[r, 1] = i, c
                     r += 1
-    return n, depth, unfoldings
+        move_kernel(
+            master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b
+        )
+    n_faces_b, keep_all, normals_a, setup = contact
+    result = (
+        np.empty((n, 2), np.int64),
+        np.empty((n, 3)),
+        np.empty((n, 3)),
+        np.empty(n),
+    )
+    pairs, points, normals, overlaps = result
+    count, k = contact_kernel(
+        found, n, face_a, face_b, n_faces_b, keep_all, normals_a, setup, result
+    )
+    return depth, unfoldings, (pairs[:count], points[:k], normals[:k], overlaps[:k])
+
+
+@njit(**JIT)
+def _buffers(capacity, like):
+    """Result buffers of ``listed_kernel`` (see ``triangle_batch._record``), floats of
+    the dtype of ``like``."""
+    dtype = like.dtype
+    return (
+        np.empty(capacity, np.int64),
+        np.empty(capacity, np.int64),
+        np.empty(capacity, dtype),
+        np.empty((3, capacity), dtype),
+        np.empty((3, capacity), dtype),
+        np.empty(capacity, np.int8),
+    )
+
+
+@njit(**JIT)
+def _room(out, n, need):
+    """``out`` if it holds ``need`` rows, else larger buffers with its first ``n`` rows."""
+    if out[0].shape[0] >= need:
+        return out
+    grown = _buffers(max(need, 2 * out[0].shape[0]), out[2])
+    grown[0][:n] = out[0][:n]
+    grown[1][:n] = out[1][:n]
+    grown[2][:n] = out[2][:n]
+    grown[3][:, :n] = out[3][:, :n]
+    grown[4][:, :n] = out[4][:, :n]
+    grown[5][:n] = out[5][:n]
+    return grown

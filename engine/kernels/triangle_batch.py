@@ -218,17 +218,15 @@ def iterate_paired(a, fa, b, fb, m, iterations, one, band_factor, scratch):
 
 
 @njit(**JIT)
-def gather(src, idx, t0, m, dst):
-    """``dst[:, k] = src[idx[t0 + k], :]`` for ``k < m``.
-
-    ``src (n, r)`` is the row-major copy of a SoA array, so one triangle's
-    values are contiguous (one or two cache lines instead of ``r`` lines).
-    """
-    r = src.shape[1]
+def gather_rows(coords, frames, idx, m, coords_out, frames_out):
+    """``coords_out[:, k] = coords[idx[k]]``, ``frames_out[:, k] = frames[idx[k]]``,
+    ``k < m``: a triangle's row-major coordinates (9) and frame (14), unrolled."""
     for k in range(m):
-        i = idx[t0 + k]
-        for c in range(r):
-            dst[c, k] = src[i, c]
+        i = idx[k]
+        for c in range(9):
+            coords_out[c, k] = coords[i, c]
+        for c in range(14):
+            frames_out[c, k] = frames[i, c]
 
 
 @njit(**JIT)
@@ -314,14 +312,15 @@ def paired_kernel(
                 point_b[0, t], point_b[1, t], point_b[2, t] = q
 
 
-@njit(**JIT)
-def _record(n, i, j, d, p, q, st, out):
-    """Append one result to ``out`` if there is room; always return the new count.
+@njit(**INLINE)
+def _record(n, i, j, d, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s):
+    """Append one result to the arrays of ``out`` if there is room; always return the
+    new count.
 
     ``out = (i (cap,), j (cap,), distance (cap,), point_a (3, cap), point_b (3, cap),
-    status (cap,))``.
+    status (cap,))``, unpacked by the caller outside its loop (a tuple item taken
+    inside the loop costs reference counting on every pair).
     """
-    out_i, out_j, out_d, out_p, out_q, out_s = out
     if n < out_i.shape[0]:
         out_i[n] = i
         out_j[n] = j
@@ -360,12 +359,15 @@ def _resolve(m, params, work, n, out, stats):
     """
     mode, iterations, rtol, one, band_factor = params
     ga, gfa, gb, gfb, gi, gj, geps, scratch, dist = work
+    out_i, out_j, out_d, out_p, out_q, out_s = out
     if mode == EXACT:
         exact_paired(ga, gfa, gb, gfb, m, one, dist)
         for k in range(m):
             if dist[k] <= geps[k]:
                 d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
-                n = _record(n, gi[k], gj[k], d, p, q, CONTACT, out)
+                n = _record(
+                    n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
+                )
         return n
     iterate_paired(ga, gfa, gb, gfb, m, iterations, one, band_factor, scratch)
     stats[STAT_ITERATIVE] += m
@@ -377,12 +379,14 @@ def _resolve(m, params, work, n, out, stats):
             stats[STAT_FALLBACKS] += 1
             d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
             if d <= eps:
-                n = _record(n, gi[k], gj[k], d, p, q, CONTACT, out)
+                n = _record(
+                    n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
+                )
         elif st != NO_CONTACT:
             o = (ga[0, k], ga[1, k], ga[2, k])
             p = (scratch[0, k] + o[0], scratch[1, k] + o[1], scratch[2, k] + o[2])
             q = (scratch[3, k] + o[0], scratch[4, k] + o[1], scratch[5, k] + o[2])
-            n = _record(n, gi[k], gj[k], upper, p, q, st, out)
+            n = _record(n, gi[k], gj[k], upper, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s)
     return n
 
 
@@ -394,23 +398,9 @@ def _flush(rm, c, params, work, n, out, stats):
     """
     a_rm, fa_rm, b_rm, fb_rm = rm
     ga, gfa, gb, gfb, gi, gj = work[:6]
-    gather(a_rm, gi, ZERO, c, ga)
-    gather(fa_rm, gi, ZERO, c, gfa)
-    gather(b_rm, gj, ZERO, c, gb)
-    gather(fb_rm, gj, ZERO, c, gfb)
+    gather_rows(a_rm, fa_rm, gi, c, ga, gfa)
+    gather_rows(b_rm, fb_rm, gj, c, gb, gfb)
     return _resolve(c, params, work, n, out, stats)
-
-
-@njit(**JIT)
-def _enqueue(i, j, eps, c, n, rm, params, work, out, stats):
-    """Queue candidate (i, j) at slot ``c``; resolve the queue once it holds a full
-    block. Returns the new ``(c, n)``."""
-    work[4][c], work[5][c], work[6][c] = i, j, eps
-    c += 1
-    if c == BLOCK:
-        n = _flush(rm, c, params, work, n, out, stats)
-        c = ZERO
-    return c, n
 
 
 @njit(**JIT)
@@ -430,6 +420,8 @@ def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, s
     nb = b.shape[1]
     n = ZERO
     work = workspace(a)
+    queue_i, queue_j, queue_eps = work[4], work[5], work[6]
+    out_i, out_j, out_d, out_p, out_q, out_s = out
     margin = np.empty(nb, a.dtype)
     dist = np.empty(nb, a.dtype)
     c = ZERO
@@ -440,14 +432,18 @@ def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, s
             for j in range(nb):
                 if dist[j] <= eps_a[i] + eps_b[j]:
                     d, p, q = exact_point(a, fa, i, b, fb, j, one)
-                    n = _record(n, i, j, d, p, q, CONTACT, out)
+                    n = _record(n, i, j, d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s)
             continue
         bound_rows(a, fa, i, b, fb, eps_a[i], eps_b, one, band_factor, margin)
         kept = ZERO
         for j in range(nb):
             if margin[j] <= 0:
                 kept += 1
-                c, n = _enqueue(i, j, eps_a[i] + eps_b[j], c, n, rm, params, work, out, stats)
+                queue_i[c], queue_j[c], queue_eps[c] = i, j, eps_a[i] + eps_b[j]
+                c += 1
+                if c == BLOCK:
+                    n = _flush(rm, c, params, work, n, out, stats)
+                    c = ZERO
         stats[STAT_CULLED] += nb - kept
     if c > 0:
         n = _flush(rm, c, params, work, n, out, stats)
@@ -455,20 +451,34 @@ def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, s
 
 
 @njit(**JIT)
-def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, n, stats):
+def listed_workspace(a):
+    """Buffers of :func:`listed_kernel`: :func:`workspace`, then gathered coordinates
+    of A and B, contact distances and bound margins of one block."""
+    f = a.dtype
+    return (
+        workspace(a),
+        np.empty((9, BLOCK), f),
+        np.empty((9, BLOCK), f),
+        np.empty(BLOCK, f),
+        np.empty(BLOCK, f),
+    )
+
+
+@njit(**JIT)
+def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, buffers, out, n, stats):
     """Contacts among listed pairs ``pairs[t] = (i, j)`` (int64), ``start ≤ t < stop``.
 
     Same arguments and return value as :func:`all_pairs_kernel`, except that
-    results are appended to ``out`` after its first ``n`` entries. Outside
-    ``EXACT`` mode each block of pairs is culled on gathered coordinates;
-    survivors are queued and resolved a full block at a time.
+    results are appended to ``out`` after its first ``n`` entries, and that the
+    caller passes the :func:`listed_workspace` ``buffers`` (so that a traversal
+    calling this per level allocates them once). Outside ``EXACT`` mode each
+    block of pairs is culled on gathered coordinates; survivors are queued and
+    resolved a full block at a time.
     """
     a_rm, b_rm = rm[0], rm[2]
     mode, one, band_factor = params[0], params[3], params[4]
-    work = workspace(a_rm)
-    ca, cb = np.empty((9, BLOCK), a_rm.dtype), np.empty((9, BLOCK), a_rm.dtype)
-    ceps = np.empty(BLOCK, a_rm.dtype)
-    margin = np.empty(BLOCK, a_rm.dtype)
+    work, ca, cb, ceps, margin = buffers
+    queue_i, queue_j, queue_eps = work[4], work[5], work[6]
     c = ZERO
     for t0 in range(start, stop, BLOCK):
         m = min(BLOCK, stop - t0)
@@ -486,8 +496,11 @@ def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, out, n, stats):
         for k in range(m):
             if margin[k] <= 0:
                 kept += 1
-                i, j = pairs[t0 + k, 0], pairs[t0 + k, 1]
-                c, n = _enqueue(i, j, ceps[k], c, n, rm, params, work, out, stats)
+                queue_i[c], queue_j[c], queue_eps[c] = pairs[t0 + k, 0], pairs[t0 + k, 1], ceps[k]
+                c += 1
+                if c == BLOCK:
+                    n = _flush(rm, c, params, work, n, out, stats)
+                    c = ZERO
         stats[STAT_CULLED] += m - kept
     if c > 0:
         n = _flush(rm, c, params, work, n, out, stats)

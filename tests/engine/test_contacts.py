@@ -158,13 +158,15 @@ def test_unknown_traversal_is_rejected(trees):
 
 
 def test_merge_averages_clusters_of_close_points():
-    from engine.contacts import _merge
+    from engine.kernels.contact_merge import _merge
 
     points = np.array([[0, 0, 0], [0.004, 0, 0], [1, 0, 0], [1, 0.004, 0], [5, 5, 5]], float)
     normals = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [1, 0, 0]], float)
     overlaps = np.array([0.02, 0.01, 0.015, 0.005, 0.001])
-    p, n, o = _merge(points, normals, overlaps, radius=0.01)
-    assert len(p) == 3  # clusters {0, 1}, {2, 3}, {4}; deepest first
+    p, n, o = np.empty((5, 3)), np.empty((5, 3)), np.empty(5)
+    k = _merge(points, normals, overlaps, 0.01, p, n, o)
+    p, n, o = p[:k], n[:k], o[:k]
+    assert k == 3  # clusters {0, 1}, {2, 3}, {4}; deepest first
     np.testing.assert_allclose(p[0], [0.002, 0, 0])
     np.testing.assert_allclose(n[0], [np.sqrt(0.5), np.sqrt(0.5), 0])
     np.testing.assert_allclose(o[0], 0.015)
