@@ -4,6 +4,7 @@ Never imports ``service`` or ``clients``.
 """
 
 from . import shapes
+from .batch import ContactBatch, TreeBank, find_contacts_batch
 from .contacts import ContactSet, ContactStats, find_contacts
 from .distance import (
     DEFAULT_ITERATIONS,
@@ -26,6 +27,9 @@ __all__ = [
     "ContactStats",
     "Pose",
     "find_contacts",
+    "ContactBatch",
+    "TreeBank",
+    "find_contacts_batch",
     "DEFAULT_ITERATIONS",
     "KernelStats",
     "PairStatus",

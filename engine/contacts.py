@@ -38,6 +38,7 @@ from .distance import (
 )
 from .errors import InvalidArgumentError
 from .kernels import triangle_batch as tb
+from .kernels.batch import query_margin, relative_pose
 from .kernels.contact_merge import contact_kernel
 from .kernels.rigid import margin_kernel, move_kernel
 from .kernels.traversal import query_kernel
@@ -46,10 +47,8 @@ from .tree import SurrogateTree
 
 __all__ = ["ContactSet", "ContactStats", "find_contacts"]
 
-_MARGIN_ULPS = 256
-_ULP = {np.float32: float(np.finfo(np.float32).eps), np.float64: float(np.finfo(np.float64).eps)}
-_SQRT3 = float(np.sqrt(3.0))
-_TINY = 1e3 * float(np.finfo(np.float32).eps)  # relative gap below which p and q coincide
+ULP = {np.float32: float(np.finfo(np.float32).eps), np.float64: float(np.finfo(np.float64).eps)}
+TINY = 1e3 * float(np.finfo(np.float32).eps)  # relative gap below which p and q coincide
 
 
 @dataclass(frozen=True)
@@ -132,8 +131,11 @@ def find_contacts(
     check_kernel(kernel), check_precision(precision)  # validate before any work
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
-    pose = _relative(pose_a, pose_b)
-    contact = _contact_setup(tree_a, tree_b, pose_a, kernel)
+    rot_a, rotation, shift = relative_pose(
+        pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
+    )
+    pose = (rotation, shift)
+    contact = _contact_setup(tree_a, tree_b, rot_a, pose_a.position.copy(), kernel)
     if hierarchy and traversal == "pairs":
         result, counters = _hierarchical(tree_a, tree_b, pose, contact, kernel, precision)
     else:
@@ -151,17 +153,12 @@ def find_contacts(
     return ContactSet(*result, stats)
 
 
-def _relative(pose_a: Pose, pose_b: Pose) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation ``(3, 3)`` and shift ``(3,)`` of ``pose_a⁻¹ ∘ pose_b`` (B's frame to A's)."""
-    rot_t = pose_a.rotation.T
-    return rot_t @ pose_b.rotation, rot_t @ (pose_b.position - pose_a.position)
-
-
-def _contact_setup(tree_a, tree_b, pose_a: Pose, kernel: str) -> tuple:
-    """The ``contact_kernel`` arguments after the found pairs and their face maps."""
+def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:
+    """The ``contact_kernel`` arguments after the found pairs and their face maps
+    (``rotation_a``, ``position_a``: A's pose, writable arrays as the batch passes them)."""
     ea, eb = tree_a.leaf_epsilon, tree_b.leaf_epsilon
-    tiny = _TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
-    setup = (ea, eb, tiny, min(ea, eb), pose_a.rotation, pose_a.position)
+    tiny = TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
+    setup = (ea, eb, tiny, min(ea, eb), rotation_a, position_a)
     return len(_face_nodes(tree_b)), kernel != "iterative", _face_normals(tree_a), setup
 
 
@@ -258,16 +255,12 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
     dtype = np.dtype(precision).type
     sa = _node_set(tree_a, precision, False)
     master = _master(tree_b)
-    one, band = kernel_constants(dtype)
-    iterations, rtol = np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL)
-    coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
-    coarse = (coarse_mode, iterations, rtol, one, band)
-    leaf = (KERNELS[kernel], iterations, rtol, one, band)
+    coarse, leaf = query_parameters(kernel, dtype)
     body_a = (sa.coords_rm, sa.frames_rm, tree_a.epsilon, *_structure(tree_a))
     body_b = (master.coords_rm, master.frames_rm, tree_b.epsilon, *_structure(tree_b))
     stats = np.zeros(tb.N_STATS, np.int64)
     levels = np.zeros(64, np.int64)
-    margin = _margin(tree_a, tree_b, pose[1], dtype)
+    margin = query_margin(extent(tree_a), extent(tree_b), pose[1], ULP[dtype])
     depth, unfoldings, result = query_kernel(
         body_a, body_b, pose, margin, coarse, leaf, contact, stats, levels
     )
@@ -280,6 +273,21 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
     return result, counters
 
 
+def query_parameters(kernel: str, dtype) -> tuple[tuple, tuple]:
+    """Kernel parameters ``(mode, iterations, rtol, one, band)`` for surrogate pairs
+    (iterative; exact when ``kernel="exact"``) and for leaf pairs (``kernel``)."""
+    one, band = kernel_constants(dtype)
+    iterations, rtol = np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL)
+    coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
+    return (coarse_mode, iterations, rtol, one, band), (
+        KERNELS[kernel],
+        iterations,
+        rtol,
+        one,
+        band,
+    )
+
+
 def _structure(tree: SurrogateTree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return tree.face, tree.first_child, tree.child_count
 
@@ -289,7 +297,7 @@ def _active_sets(tree_a, tree_b, pose, kernel, precision):
     dtype = np.dtype(precision).type
     sa = _node_set(tree_a, precision, False)
     sb = TriangleSet.prepared(*(x.T for x in _moved(tree_b, pose, np.arange(len(tree_b)), dtype)))
-    margin = _margin(tree_a, tree_b, pose[1], dtype)
+    margin = query_margin(extent(tree_a), extent(tree_b), pose[1], ULP[dtype])
     eps_a, eps_b = np.empty(len(tree_a), dtype), np.empty(len(tree_b), dtype)
     margin_kernel(tree_a.epsilon, tree_a.face, margin, eps_a)
     margin_kernel(tree_b.epsilon, tree_b.face, margin, eps_b)
@@ -342,17 +350,8 @@ def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
     return np.unique(np.concatenate([leaves, children]))
 
 
-def _extent(tree: SurrogateTree) -> float:
+def extent(tree: SurrogateTree) -> float:
     """Largest absolute coordinate of ``tree``'s nodes in its body frame (cached)."""
     if "_extent" not in tree.__dict__:
         tree.__dict__["_extent"] = float(np.abs(tree.triangles).max())
     return tree.__dict__["_extent"]
-
-
-def _margin(tree_a, tree_b, shift: np.ndarray, dtype) -> float:
-    """Safety margin on surrogate ε (see the module docstring): 256 ulp of the pair's
-    scale, which bounds every coordinate in A's frame — B's shift plus both bodies'
-    extents about their own origins (a rotation stretches a max-norm by at most √3)."""
-    extents = _extent(tree_a) + _extent(tree_b)
-    scale = 2 * (_SQRT3 * extents + float(np.sqrt(shift @ shift)))
-    return _MARGIN_ULPS * _ULP[dtype] * scale

@@ -7,6 +7,7 @@ import time
 import numpy as np
 
 from .arguments import KERNELS, PRECISIONS
+from .batch import find_contacts_batch
 from .contacts import find_contacts
 from .distance import TriangleSet, triangle_contacts, triangle_distances
 from .pose import Pose
@@ -29,6 +30,9 @@ def warmup() -> float:
             triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
+            )
+            find_contacts_batch(
+                [(tree, Pose.identity(), tree, near)], kernel=kernel, precision=precision
             )
             for hierarchy in (True, False):
                 find_contacts(

@@ -1,0 +1,122 @@
+"""Batched contacts: every pair's result equals the single query's, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine import (
+    InvalidArgumentError,
+    Pose,
+    TreeBank,
+    build_tree,
+    find_contacts,
+    find_contacts_batch,
+    shapes,
+)
+
+
+@pytest.fixture(scope="module")
+def trees():
+    return [
+        build_tree(shapes.noisy_sphere(subdivisions=1, eta_r=1.3, seed=2), epsilon=0.03),
+        build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
+        build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
+    ]
+
+
+def random_queries(trees, count, seed):
+    rng = np.random.default_rng(seed)
+    queries = []
+    for _ in range(count):
+        a, b = (trees[i] for i in rng.integers(len(trees), size=2))
+        qa, qb = rng.normal(size=4), rng.normal(size=4)
+        direction = rng.normal(size=3)
+        reach = (a.bounding_radius + b.bounding_radius) * rng.uniform(0.3, 1.1)
+        pa = Pose(rng.normal(size=3), qa / np.linalg.norm(qa))
+        pb = Pose(
+            pa.position + reach * direction / np.linalg.norm(direction), qb / np.linalg.norm(qb)
+        )
+        queries.append((a, pa, b, pb))
+    return queries
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_batch_equals_single_queries(trees, precision, threads):
+    queries = random_queries(trees, 300, seed=threads)
+    batch = find_contacts_batch(queries, precision=precision, threads=threads)
+    assert len(batch) == len(queries)
+    touching = 0
+    for got, query in zip(batch, queries, strict=True):
+        want = find_contacts(*query, precision=precision)
+        np.testing.assert_array_equal(got.pairs, want.pairs)
+        np.testing.assert_array_equal(got.points, want.points)
+        np.testing.assert_array_equal(got.normals, want.normals)
+        np.testing.assert_array_equal(got.overlaps, want.overlaps)
+        assert got.stats == want.stats
+        touching += len(want.pairs) > 0
+    assert 0 < touching < len(queries)
+
+
+def test_flat_batch_equals_flat_queries(trees):
+    queries = random_queries(trees, 20, seed=7)
+    batch = find_contacts_batch(queries, kernel="exact", hierarchy=False)
+    for got, query in zip(batch, queries, strict=True):
+        np.testing.assert_array_equal(got.pairs, find_contacts(*query, hierarchy=False).pairs)
+
+
+def test_bank_results_are_ragged_and_counted(trees):
+    bank = TreeBank(trees)
+    queries = random_queries(trees, 50, seed=3)
+    index = {id(t): i for i, t in enumerate(trees)}
+    result = bank.find_contacts(
+        [index[id(q[0])] for q in queries],
+        [q[1].position for q in queries],
+        [q[1].orientation for q in queries],
+        [index[id(q[2])] for q in queries],
+        [q[3].position for q in queries],
+        [q[3].orientation for q in queries],
+    )
+    assert len(result) == 50
+    assert result.pair_offsets[-1] == len(result.pairs)
+    assert result.contact_offsets[-1] == len(result.points) == len(result.overlaps)
+    assert (np.diff(result.pair_offsets) >= np.diff(result.contact_offsets)).all()
+    assert result.comparisons == sum(result[q].stats.comparisons for q in range(50))
+    np.testing.assert_allclose(np.linalg.norm(result.normals, axis=1), 1.0, atol=1e-12)
+    assert result[-1].pairs.shape == (
+        result.pair_offsets[-1] - result.pair_offsets[-2],
+        2,
+    )
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("tree_a", [0, 5], "outside the bank"),
+        ("tree_a", [0.5, 1.0], "integer tree positions"),
+        ("position_a", [[0, 0, 0], [0, np.nan, 0]], "finite"),
+        ("orientation_b", [[1, 0, 0, 0], [2, 0, 0, 0]], "unit quaternion"),
+        ("position_b", [[0, 0, 0]], r"\(2, 3\)"),
+    ],
+)
+def test_bank_rejects_bad_queries(trees, field, value, message):
+    args = {
+        "tree_a": [0, 1],
+        "position_a": [[0, 0, 0], [0, 0, 0]],
+        "orientation_a": [[1, 0, 0, 0], [1, 0, 0, 0]],
+        "tree_b": [1, 2],
+        "position_b": [[1, 0, 0], [2, 0, 0]],
+        "orientation_b": [[1, 0, 0, 0], [1, 0, 0, 0]],
+    }
+    args[field] = value
+    with pytest.raises(InvalidArgumentError, match=message):
+        TreeBank(trees).find_contacts(**args)
+
+
+def test_batch_rejects_malformed_queries(trees):
+    with pytest.raises(InvalidArgumentError, match=r"queries\[1\]"):
+        find_contacts_batch([(trees[0], Pose.identity(), trees[1], Pose.identity()), (1, 2)])
+    with pytest.raises(InvalidArgumentError, match="at least one tree"):
+        TreeBank([])
+    assert find_contacts_batch([]) == []
