@@ -1,4 +1,4 @@
-"""Benchmark of surrogate trees and the multiresolution contact search (issue 3, baseline).
+"""Benchmark of surrogate trees and the multiresolution contact search (issue 3).
 
 Run: ``.venv/bin/python benchmarks/trees.py``. Prints tables and writes
 ``bench-results/trees.json``.
@@ -7,8 +7,10 @@ Run: ``.venv/bin/python benchmarks/trees.py``. Prints tables and writes
 * two 1,280-triangle icospheres (radius 1, ε = 0.01) at gaps 1.0, 0.02, −0.01, −0.1:
   contact pairs, triangle comparisons and query time of the multiresolution search
   (hybrid) against the flat exact search, same poses, same run;
-* two 1,224-triangle UV spheres approaching (gaps 0.5 → 0.0) and a UV sphere on a
-  plane: comparisons summed over the approach, flat against hierarchy.
+* the paper's explicit comparison-count table: two 1,224-triangle UV spheres approaching,
+  touching and separating, and a UV sphere rolling on a 512-triangle plane, 100 static
+  configurations each: comparisons, iterative evaluations, fallbacks and time per step,
+  flat vs hierarchy, exact vs hybrid, beside the paper's numbers.
 """
 
 from __future__ import annotations
@@ -87,33 +89,98 @@ def gap_queries() -> list[dict]:
     return rows
 
 
-def approach() -> list[dict]:
-    sphere = build_tree(shapes.paper_sphere(1224), 0.01)
-    plane = build_tree(shapes.plane(size=(6.0, 6.0), divisions=8), 0.01)
+# The paper's Table "comparison count" (explicit Euler step, averaged over 100 steps,
+# 1,224-triangle spheres of diameter 1, plane of 512 triangles): comparisons and seconds.
+PAPER_EXPLICIT = {
+    "particle-particle": {
+        "flat exact": (1.50e6, 3.96),
+        "flat hybrid": (1.50e6, 1.87, 1.66e3),
+        "hierarchy exact": (8.20e3, 2.60e-2),
+        "hierarchy hybrid": (7.64e3, 1.80e-2, 1.44e2),
+    },
+    "particle-plane": {
+        "flat exact": (6.27e5, 1.68),
+        "flat hybrid": (6.27e5, 8.00, 1.57e4),
+        "hierarchy exact": (5.27e3, 7.68e-2),
+        "hierarchy hybrid": (5.03e3, 4.00e-2, 4.96e2),
+    },
+}
+STEPS = 100
+VARIANTS = {  # name: (kernel, hierarchy)
+    "flat exact": ("exact", False),
+    "flat hybrid": ("hybrid", False),
+    "hierarchy exact": ("exact", True),
+    "hierarchy hybrid": ("hybrid", True),
+}
+
+
+def paper_poses(scenario: str) -> list[tuple[Pose, Pose]]:
+    """100 static configurations along the paper's two explicit scenarios (unit diameter).
+
+    particle-particle: B approaches A head-on from 0.25 apart, touches (down to an overlap
+    of half the contact distance), and separates again, both spinning slowly;
+    particle-plane: the sphere rolls along the plane at a gap inside the contact distance.
+    """
+    poses = []
+    for step in range(STEPS):
+        phase = step / (STEPS - 1)
+        angle = 2 * np.pi * phase
+        spin = [np.cos(angle / 2), 0.0, np.sin(angle / 2), 0.0]  # about y
+        if scenario == "particle-particle":
+            gap = 0.25 * abs(2 * phase - 1) ** 1.5 - 0.01
+            other = [np.cos(angle / 3), np.sin(angle / 3), 0.0, 0.0]
+            poses.append((Pose([0, 0, 0], spin), Pose([1.0 + gap, 0.1, 0.05], other)))
+        else:  # rolls 1.5 along x (≈ one turn of a unit-diameter sphere), gap 0.005
+            poses.append((Pose([-0.75 + 1.5 * phase, 0.2, 0.505], spin), Pose.identity()))
+    return poses
+
+
+def paper_table() -> list[dict]:
+    sphere = build_tree(shapes.paper_sphere(1224, radius=0.5), 0.01)
+    plane = build_tree(shapes.plane(size=(3.0, 3.0), divisions=16), 0.01)  # 512 triangles
     rows = []
-    for name, other, base in (("sphere-sphere", sphere, 2.0), ("sphere-plane", plane, 1.0)):
-        totals = {"hierarchy": 0, "flat": 0, "pairs": 0}
-        for gap in np.linspace(0.5, 0.0, 11):
-            pa, pb = Pose([0, 0, base + gap], [1, 0, 0, 0]), Pose.identity()
-            hier = find_contacts(sphere, pa, other, pb)
-            flat = find_contacts(sphere, pa, other, pb, kernel="exact", hierarchy=False)
-            assert np.array_equal(hier.pairs, flat.pairs)
-            totals["hierarchy"] += hier.stats.comparisons
-            totals["flat"] += flat.stats.comparisons
-            totals["pairs"] += len(hier.pairs)
-        totals["reduction"] = totals["flat"] / totals["hierarchy"]
-        rows.append({"scenario": name, **totals})
-        print(
-            f"{name}: comparisons over 11 gaps {totals['hierarchy']} vs {totals['flat']} "
-            f"({totals['reduction']:.0f}x fewer), contact pairs {totals['pairs']}"
-        )
+    for scenario, other in (("particle-particle", sphere), ("particle-plane", plane)):
+        poses = paper_poses(scenario)
+        reference = None
+        for name, (kernel, hierarchy) in VARIANTS.items():
+            total = {"comparisons": 0, "iterative": 0, "fallbacks": 0, "seconds": 0.0, "pairs": 0}
+            results = []
+            for pa, pb in poses:
+                start = time.perf_counter()
+                res = find_contacts(sphere, pa, other, pb, kernel=kernel, hierarchy=hierarchy)
+                total["seconds"] += time.perf_counter() - start
+                results.append(res.pairs)
+                total["comparisons"] += res.stats.comparisons
+                total["iterative"] += res.stats.iterative
+                total["fallbacks"] += res.stats.fallbacks
+                total["pairs"] += len(res.pairs)
+            if reference is None:
+                reference = results
+            assert all(np.array_equal(x, y) for x, y in zip(results, reference, strict=True))
+            row = {
+                "scenario": scenario,
+                "variant": name,
+                **{k: v / STEPS for k, v in total.items()},
+            }
+            paper = PAPER_EXPLICIT[scenario][name]
+            row["paper_comparisons"], row["paper_seconds"] = paper[0], paper[1]
+            row["paper_fallbacks"] = paper[2] if len(paper) > 2 else None
+            rows.append(row)
+            print(
+                f"{scenario:17s} {name:16s} comparisons {row['comparisons']:10.4g}"
+                f" (paper {paper[0]:.3g})  iterative {row['iterative']:10.4g}"
+                f"  fallbacks {row['fallbacks']:8.4g}  time {row['seconds'] * 1e3:9.3f} ms"
+                f" (paper {paper[1] * 1e3:.3g} ms)  contact pairs {row['pairs']:.1f}"
+            )
+        flat, tree = rows[-4]["comparisons"], rows[-1]["comparisons"]
+        print(f"{scenario}: comparisons reduced {flat / tree:.0f}x (flat exact / hierarchy hybrid)")
     return rows
 
 
 def main() -> None:
     OUT.mkdir(exist_ok=True)
     engine.warmup()
-    results = {"build": build_times(), "gaps": gap_queries(), "approach": approach()}
+    results = {"build": build_times(), "gaps": gap_queries(), "paper_table": paper_table()}
     (OUT / "trees.json").write_text(json.dumps(results, indent=2))
     print(f"wrote {OUT / 'trees.json'}")
 
