@@ -11,10 +11,17 @@ Distance to a triangle is convex, so its maximum over a covered triangle is atta
 at a vertex: every covered triangle's ε-region lies inside the surrogate's. The
 distances come from the exact triangle kernel (a vertex is a zero-area triangle).
 
-Surrogate construction: the plane through the covered vertices is fitted by PCA and
-placed at mid-height (minimising the largest height); in it, the smallest enclosing
-equilateral triangle of the projected vertices over 24 orientations (its three sides
-are support lines) covers them all, so ε is the half-thickness of the group.
+Surrogate construction (:mod:`engine.surrogates`): the initial triangle is the smallest
+enclosing equilateral triangle of the covered vertices in their mid-height PCA plane
+(24 orientations), whose ε is the half-thickness of the group. It is then **fitted** by
+minimising the Appendix-A functional (``fit="epsilon"``, the default: soft maximum of the
+distances from the covered vertices to the surrogate, plus a weighted copy of the
+paper's surrogate-to-covered term that keeps the triangle small, plus the area
+regulariser; see :data:`engine.surrogates.FITS`). The fitted triangle replaces the
+initial one only if its ε-region — 2·area·ε + perimeter·πε²/2 + 4/3·πε³ with its exact
+conservative ε — is not larger, so fitting never makes a node worse. ``fit="paper"``
+minimises the paper's literal functional instead, ``fit="initial"`` keeps the initial
+triangle. k-means is the only random step: equal inputs and seed give identical trees.
 
 Storage is flat and in breadth-first order (levels contiguous, each node's children
 contiguous): ``triangles (N, 3, 3)``, ``epsilon (N,)``, ``level``, ``parent``,
@@ -35,6 +42,14 @@ import numpy as np
 from .distance import triangle_distances
 from .errors import InvalidArgumentError
 from .mesh import Mesh
+from .surrogates import (
+    DEFAULT_FIT,
+    FitParameters,
+    enclosing_triangle,
+    fit_triangle,
+    region_volume,
+    resolve_fit,
+)
 
 __all__ = ["TREE_FORMAT", "SurrogateTree", "TreeStats", "build_tree"]
 
@@ -42,7 +57,6 @@ TREE_FORMAT = 1
 """Version of the ``.npz`` layout written by :meth:`SurrogateTree.save`."""
 _ARRAYS = ("triangles", "epsilon", "level", "parent", "first_child", "child_count", "face")
 _KMEANS_ITERATIONS = 20
-_ORIENTATIONS = 24
 
 
 @dataclass(frozen=True)
@@ -118,9 +132,8 @@ class SurrogateTree:
         levels = np.bincount(self.level)
         root = self.triangles[0]
         edges = np.linalg.norm(root - np.roll(root, 1, axis=0), axis=1)
-        area = 0.5 * np.linalg.norm(np.cross(root[1] - root[0], root[2] - root[0]))
         eps = float(self.epsilon[0])
-        region = area * 2 * eps + edges.sum() * np.pi * eps**2 / 2 + 4 / 3 * np.pi * eps**3
+        region = region_volume(root, eps)
         sphere = 4 / 3 * np.pi * self.bounding_radius**3
         return TreeStats(
             depth=len(levels) - 1,
@@ -181,7 +194,13 @@ class SurrogateTree:
             raise InvalidArgumentError("surrogate tree file has an invalid node structure")
 
 
-def build_tree(mesh: Mesh, epsilon: float, branching: int = 8, seed: int = 0) -> SurrogateTree:
+def build_tree(
+    mesh: Mesh,
+    epsilon: float,
+    branching: int = 8,
+    seed: int = 0,
+    fit: str | FitParameters = DEFAULT_FIT,
+) -> SurrogateTree:
     """Build the surrogate tree of ``mesh``.
 
     Parameters
@@ -190,6 +209,10 @@ def build_tree(mesh: Mesh, epsilon: float, branching: int = 8, seed: int = 0) ->
     epsilon : float — ε of the original triangles (the body's halo), ≥ 0
     branching : int — surrogates per split and most leaves per node (N_surrogate), ≥ 2
     seed : int — k-means seed; equal inputs give identical trees
+    fit : str or FitParameters — surrogate construction: a key of
+        :data:`engine.surrogates.FITS` ("epsilon", fitted, the default; "paper", the
+        paper's literal functional; "initial", the enclosing triangle unfitted) or
+        parameters of the functional
 
     Returns
     -------
@@ -201,6 +224,7 @@ def build_tree(mesh: Mesh, epsilon: float, branching: int = 8, seed: int = 0) ->
         raise InvalidArgumentError(f"epsilon must be finite and non-negative, got {epsilon!r}")
     if isinstance(branching, bool) or not isinstance(branching, int | np.integer) or branching < 2:
         raise InvalidArgumentError(f"branching must be an integer >= 2, got {branching!r}")
+    params = resolve_fit(fit)
     tris = mesh.triangles
     centroids = tris.mean(axis=1)
     rng = np.random.default_rng(seed)
@@ -217,7 +241,7 @@ def build_tree(mesh: Mesh, epsilon: float, branching: int = 8, seed: int = 0) ->
         return len(nodes["face"]) - 1
 
     all_faces = np.arange(len(tris))
-    root_tri, root_eps = _surrogate(tris[all_faces], epsilon)
+    root_tri, root_eps = _surrogate(tris[all_faces], epsilon, params)
     queue = deque([(add(root_tri, root_eps, 0, -1, -1), all_faces)])
     while queue:
         node, faces = queue.popleft()
@@ -231,7 +255,7 @@ def build_tree(mesh: Mesh, epsilon: float, branching: int = 8, seed: int = 0) ->
         groups = _kmeans(centroids[faces], branching, rng)
         for group in groups:
             sub = faces[group]
-            tri, eps = _surrogate(tris[sub], epsilon)
+            tri, eps = _surrogate(tris[sub], epsilon, params)
             queue.append((add(tri, eps, level, node, -1), sub))
         nodes["child_count"][node] = len(groups)
     arrays = {
@@ -279,39 +303,33 @@ def _kmeans(points: np.ndarray, k: int, rng: np.random.Generator) -> list[np.nda
     return groups
 
 
-def _surrogate(tris: np.ndarray, leaf_epsilon: float) -> tuple[np.ndarray, float]:
-    """Surrogate triangle ``(3, 3)`` and conservative ε for the triangles ``(m, 3, 3)``."""
+def _surrogate(
+    tris: np.ndarray, leaf_epsilon: float, params: FitParameters | None
+) -> tuple[np.ndarray, float]:
+    """Surrogate triangle ``(3, 3)`` and conservative ε for the triangles ``(m, 3, 3)``.
+
+    The fitted triangle (``params`` None: no fit) replaces the initial one only if its
+    ε-region with its exact ε is not larger.
+    """
     if len(tris) == 1:
         return tris[0].copy(), float(leaf_epsilon)
     points = np.unique(tris.reshape(-1, 3), axis=0)
-    centre = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
-    u, v, normal = vt[0], vt[1], np.cross(vt[0], vt[1])
-    face_normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]).sum(axis=0)
-    if normal @ face_normals < 0:  # outward, like the covered faces
-        normal, v = -normal, -v
-    heights = (points - centre) @ normal
-    centre = centre + normal * (heights.max() + heights.min()) / 2
-    flat = np.stack([(points - centre) @ u, (points - centre) @ v], axis=1)
-    best = None
-    for theta in np.linspace(0, 2 * np.pi / 3, _ORIENTATIONS, endpoint=False):
-        angles = theta + np.array([0.0, 2 * np.pi / 3, 4 * np.pi / 3])
-        dirs = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        support = (flat @ dirs.T).max(axis=0)
-        if best is None or support.sum() < best[0]:
-            best = (support.sum(), dirs, support)
-    _, dirs, support = best
-    corners = []
-    for i, j in ((1, 2), (2, 0), (0, 1)):  # vertex opposite side i: where sides i+1, i+2 meet
-        corners.append(np.linalg.solve(np.stack([dirs[i], dirs[j]]), [support[i], support[j]]))
-    tri = np.array([centre + c[0] * u + c[1] * v for c in corners])
-    if np.cross(tri[1] - tri[0], tri[2] - tri[0]) @ normal < 0:
-        tri = tri[[0, 2, 1]]
-    d = _point_distances(points, tri)
-    return tri, float(d.max() + leaf_epsilon)
+    tri = enclosing_triangle(points, tris)
+    if params is None:
+        return tri, float(_point_distances(points, tri[None]).max() + leaf_epsilon)
+    fitted = fit_triangle(points, tris, tri, params)
+    eps, fitted_eps = _point_distances(points, np.stack([tri, fitted])).max(axis=1)
+    if region_volume(fitted, fitted_eps) <= region_volume(tri, eps):
+        tri, eps = fitted, fitted_eps
+    return tri, float(eps + leaf_epsilon)
 
 
-def _point_distances(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Distances ``(m,)`` from ``points (m, 3)`` to ``tri (3, 3)`` (exact kernel, float64)."""
-    pts = np.repeat(points[:, None, :], 3, axis=1)
-    return triangle_distances(pts, np.broadcast_to(tri, pts.shape), "exact", "float64").distance
+def _point_distances(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Distances ``(k, m)`` from ``points (m, 3)`` to each of ``tris (k, 3, 3)``.
+
+    Exact kernel, float64; a point is passed as a zero-area triangle.
+    """
+    pts = np.broadcast_to(points[None, :, None, :], (len(tris), len(points), 3, 3))
+    other = np.broadcast_to(tris[:, None], pts.shape)
+    found = triangle_distances(pts.reshape(-1, 3, 3), other.reshape(-1, 3, 3), "exact", "float64")
+    return found.distance.reshape(len(tris), len(points))

@@ -12,6 +12,7 @@ from .contacts import find_contacts
 from .distance import TriangleSet, triangle_contacts, triangle_distances
 from .pose import Pose
 from .shapes import box
+from .surrogates import FITS
 from .tree import build_tree
 
 __all__ = ["warmup"]
@@ -21,6 +22,8 @@ def warmup() -> float:
     """Run every kernel once on tiny inputs in both precisions; returns the seconds taken."""
     start = time.perf_counter()
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
+    for fit in FITS:  # "epsilon" and "paper" run the surrogate_fit kernels
+        build_tree(box(), 0.05, fit=fit)
     tree = build_tree(box(), 0.05)
     near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
     for precision in PRECISIONS:

@@ -146,6 +146,7 @@ def test_load_rejects_garbage_and_other_versions(tmp_path):
         ({"epsilon": float("nan")}, "epsilon"),
         ({"branching": 1}, "branching"),
         ({"branching": True}, "branching"),
+        ({"fit": "nope"}, "fit"),
     ],
 )
 def test_bad_arguments(kwargs, match):

@@ -1,0 +1,261 @@
+"""Surrogate triangles (paper Appendix A): the initial triangle and the fitted one.
+
+:func:`enclosing_triangle` gives the initial triangle of a group of covered triangles;
+:func:`fit_triangle` moves its three vertices to a local minimum of the functional
+below (L-BFGS, analytic gradient, Numba kernels in :mod:`engine.kernels.surrogate_fit`).
+:func:`engine.tree.build_tree` keeps the fitted triangle only if its exact conservative
+ε-region (:func:`region_volume`) is not larger than the initial one's.
+
+The functional is evaluated in the group's normalised frame — covered vertices ``p_i``
+centred on their mean and divided by their largest distance from it — so every
+parameter is dimensionless. For surrogate vertices ``X = (x1, x2, x3)`` with unit
+normal N (oriented like the covered faces' summed normal by the initial triangle):
+
+    F(X) = w_ε · S_β(d(p_i, X))                      covered vertices → surrogate
+         + w_paper · S_β(d(x_k, t_j))                surrogate vertices → covered triangles
+         + α_area / 2 · |(x2 − x1) × (x3 − x1)|^(−2)
+         + α_inside / β_normal · Σ_k mean_i max(0, (x_k − p_i)·N)^β_normal
+
+``S_β(r) = (mean r^β)^(1/β)`` is a soft maximum (the paper's ``1/β Σ ‖·‖^β`` made
+scale-free and overflow-safe). The paper's first term is the ``w_paper`` one: it pulls
+the three vertices to the centre of the smallest enclosing ball, so alone it gives tiny
+triangles with ε ≈ the group radius — ideal for a round group, poor for a flat one.
+What prunes is ε, the distance *from* the covered geometry *to* the surrogate: that is
+the ``w_ε`` term. That term alone has no force that shrinks the triangle (once every
+vertex projects inside it, growing it changes no distance), so the default ``"epsilon"``
+fit keeps the paper's term with weight 0.3 as the size term. The values below were
+chosen on root ε-regions and on the contact search's triangle comparisons, measured by
+``benchmarks/surrogates.py --sweep`` (full tables: docs/trees.md, "Surrogate fitting";
+"comparisons" = summed over its random poses, 308 thousand unfitted, with the traversal
+of 65b5e6c; bounding-sphere pre-pruning makes that 119 thousand unfitted, 109 fitted,
+and the sweep flat within 0.4% except for ``weight_paper``):
+
+* ``weight_paper`` = 0.3: 0 leaves the roots as they are (the ε-region of a sphere's
+  root is 7.3× its bounding ball, 303 thousand comparisons); 0.03 / 0.1 / 0.2 / 0.3 /
+  0.5 / 1 gave 248 / 237 / 230 / 226 / 252 / 286 thousand comparisons.
+* ``beta`` = 64: "very high", as in the paper; 16 / 32 / 64 / 128 gave 230 / 227 / 226 /
+  226 thousand comparisons and root ε-regions 1.63 / 1.42 / 1.36 / 1.32× the ball.
+* ``alpha_area`` = 1e-4: a guard against degenerate triangles only; 0 / 1e-4 / 1e-3 /
+  1e-2 gave 225.6 / 226.0 / 228.0 / 229.8 thousand comparisons.
+* ``alpha_inside`` = 0: the one-sided normal penalty moves the triangle inwards, which
+  never shrinks an ε-region: 1 gave 226.6 thousand comparisons, 100 gave 231.7 thousand
+  and a root ε-region 5.0× the ball. It is on (1, ``beta_normal`` = 4) in ``"paper"``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import astuple, dataclass
+from types import MappingProxyType
+
+import numpy as np
+
+from .errors import InvalidArgumentError
+from .kernels import surrogate_fit as sf
+
+__all__ = [
+    "DEFAULT_FIT",
+    "FITS",
+    "FitParameters",
+    "enclosing_triangle",
+    "fit_triangle",
+    "functional",
+    "region_volume",
+    "resolve_fit",
+]
+
+_ORIENTATIONS = 24
+
+
+@dataclass(frozen=True)
+class FitParameters:
+    """Parameters of the functional (see the module docstring) and of the minimiser.
+
+    beta, alpha_area, alpha_inside, beta_normal, weight_epsilon, weight_paper : float
+        β, α_area, α_inside, β_normal, w_ε, w_paper (dimensionless)
+    iterations : int — most L-BFGS steps
+    history : int — L-BFGS memory (curvature pairs)
+    tolerance : float — stop once a step lowers F by less than ``tolerance · (|F| + tolerance)``
+    """
+
+    beta: float
+    alpha_area: float
+    alpha_inside: float
+    beta_normal: float
+    weight_epsilon: float
+    weight_paper: float
+    iterations: int = 200
+    history: int = 6
+    tolerance: float = 1e-9
+
+    def __post_init__(self) -> None:
+        values = astuple(self)
+        ok = all(isinstance(v, int | float) and np.isfinite(v) and v >= 0 for v in values)
+        ok = ok and self.beta >= 2 and self.beta_normal >= 1 and self.history >= 1
+        if not ok or self.weight_epsilon + self.weight_paper <= 0:
+            raise InvalidArgumentError(
+                "fit parameters must be finite and >= 0, with beta >= 2, beta_normal >= 1, "
+                f"history >= 1 and a positive distance weight; got {self}"
+            )
+
+    @property
+    def array(self) -> np.ndarray:
+        """(6,) float64 — the kernel's ``params``."""
+        return np.array(astuple(self)[: sf.N_PARAMS], dtype=np.float64)
+
+
+FITS = MappingProxyType(
+    {
+        "initial": None,
+        "epsilon": FitParameters(
+            beta=64.0,
+            alpha_area=1e-4,
+            alpha_inside=0.0,
+            beta_normal=4.0,
+            weight_epsilon=1.0,
+            weight_paper=0.3,
+        ),
+        "paper": FitParameters(
+            beta=64.0,
+            alpha_area=1e-4,
+            alpha_inside=1.0,
+            beta_normal=4.0,
+            weight_epsilon=0.0,
+            weight_paper=1.0,
+        ),
+    }
+)
+"""Named surrogate constructions for :func:`engine.tree.build_tree`: ``"initial"`` (no
+fit), ``"epsilon"`` (the default) and ``"paper"`` (the paper's literal direction)."""
+DEFAULT_FIT = "epsilon"
+
+
+def resolve_fit(fit: str | FitParameters) -> FitParameters | None:
+    """The parameters named by ``fit`` (a key of :data:`FITS`, or parameters themselves);
+    None for no fit. Anything else raises :class:`~engine.errors.InvalidArgumentError`."""
+    if isinstance(fit, FitParameters):
+        return fit
+    if not isinstance(fit, str) or fit not in FITS:
+        raise InvalidArgumentError(
+            f"fit must be one of {sorted(FITS)} or FitParameters, got {fit!r}"
+        )
+    return FITS[fit]
+
+
+def region_volume(tri: np.ndarray, epsilon: float) -> float:
+    """Volume of the ε-region of ``tri (3, 3)`` float64: 2·area·ε + perimeter·πε²/2 + 4/3·πε³."""
+    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=0), axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(tri[1] - tri[0], tri[2] - tri[0]))
+    return float(
+        2 * area * epsilon + edges.sum() * np.pi * epsilon**2 / 2 + 4 / 3 * np.pi * epsilon**3
+    )
+
+
+def enclosing_triangle(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Smallest enclosing equilateral triangle of ``points`` in their mid-height PCA plane.
+
+    Parameters
+    ----------
+    points : (m, 3) float64 — covered vertices (m ≥ 1)
+    tris : (t, 3, 3) float64 — covered triangles, for the orientation only
+
+    Returns
+    -------
+    (3, 3) float64 — wound so that its normal agrees with the covered faces' summed normal
+    """
+    centre = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
+    u, v, normal = vt[0], vt[1], np.cross(vt[0], vt[1])
+    face_normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]).sum(axis=0)
+    if normal @ face_normals < 0:  # outward, like the covered faces
+        normal, v = -normal, -v
+    heights = (points - centre) @ normal
+    centre = centre + normal * (heights.max() + heights.min()) / 2
+    flat = np.stack([(points - centre) @ u, (points - centre) @ v], axis=1)
+    # side k of the triangle has outward normal dirs[:, k] and touches the points
+    angles = np.linspace(0, 2 * np.pi / 3, _ORIENTATIONS, endpoint=False)[:, None]
+    angles = angles + np.array([0.0, 2 * np.pi / 3, 4 * np.pi / 3])
+    dirs = np.stack([np.cos(angles), np.sin(angles)], axis=2)  # (orientations, 3, 2)
+    support = (dirs @ flat.T).max(axis=2)  # (orientations, 3)
+    best = int(support.sum(axis=1).argmin())
+    dirs, support = dirs[best], support[best]
+    corners = []
+    for i, j in ((1, 2), (2, 0), (0, 1)):  # vertex opposite side i: where sides i+1, i+2 meet
+        corners.append(np.linalg.solve(dirs[[i, j]], support[[i, j]]))
+    tri = np.array([centre + c[0] * u + c[1] * v for c in corners])
+    if np.cross(tri[1] - tri[0], tri[2] - tri[0]) @ normal < 0:
+        tri = tri[[0, 2, 1]]
+    return tri
+
+
+def _frame(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (3,) and radius of ``points (m, 3)``: the normalised frame of a group."""
+    centre = points.mean(axis=0)
+    return centre, float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
+
+
+def functional(
+    tri: np.ndarray, points: np.ndarray, tris: np.ndarray, params: FitParameters
+) -> tuple[float, np.ndarray]:
+    """The functional and its gradient, in the normalised frame of ``points``.
+
+    Parameters
+    ----------
+    tri : (3, 3) float64 — surrogate vertices (world coordinates)
+    points : (m, 3) float64 — covered vertices
+    tris : (t, 3, 3) float64 — covered triangles
+    params : FitParameters
+
+    Returns
+    -------
+    value : float
+    grad : (3, 3) float64 — ∂value/∂tri (world units: the frame's gradient / radius)
+    """
+    centre, radius = _frame(points)
+    x = np.ascontiguousarray((tri - centre) / radius, dtype=np.float64)
+    grad = np.empty((3, 3))
+    value = sf.objective(
+        x,
+        np.ascontiguousarray((points - centre) / radius, dtype=np.float64),
+        np.ascontiguousarray((tris - centre) / radius, dtype=np.float64),
+        params.array,
+        grad,
+    )
+    return float(value), grad / radius
+
+
+def fit_triangle(
+    points: np.ndarray, tris: np.ndarray, initial: np.ndarray, params: FitParameters
+) -> np.ndarray:
+    """Minimise the functional from ``initial``.
+
+    Parameters
+    ----------
+    points : (m, 3) float64 — covered vertices
+    tris : (t, 3, 3) float64 — covered triangles (used when ``weight_paper > 0``)
+    initial : (3, 3) float64 — starting triangle
+    params : FitParameters
+
+    Returns
+    -------
+    (3, 3) float64 — the fitted triangle (``initial`` if the fit is not finite)
+    """
+    centre, radius = _frame(points)
+    if not radius > 0:
+        return initial.copy()
+    x = np.ascontiguousarray((initial - centre) / radius, dtype=np.float64)
+    local = np.ascontiguousarray((points - centre) / radius, dtype=np.float64)
+    if params.weight_paper > 0:
+        local_tris = np.ascontiguousarray((tris - centre) / radius, dtype=np.float64)
+    else:
+        local_tris = np.zeros((0, 3, 3))
+    sf.minimise(
+        x,
+        local,
+        local_tris,
+        params.array,
+        int(params.iterations),
+        int(params.history),
+        float(params.tolerance),
+    )
+    fitted = centre + radius * x
+    return fitted if np.isfinite(fitted).all() else initial.copy()
