@@ -30,6 +30,7 @@ from .contacts import (
     extent,
     find_contacts,
     query_parameters,
+    spheres,
 )
 from .distance import _executor
 from .errors import InvalidArgumentError
@@ -55,7 +56,8 @@ class ContactBatch:
     points, normals : (c, 3) float64 — world frame; normals unit, from A to B
     overlaps : (c,) float64
     levels : (k, MAX_LEVELS) int64 — comparisons per level of each pair
-    counts : (k, 5) int64 — depth, unfoldings, iterative, fallbacks, comparisons
+    counts : (k, 6) int64 — depth, unfoldings, iterative, fallbacks, comparisons,
+        node pairs pruned by bounding spheres
     """
 
     pair_offsets: np.ndarray
@@ -83,6 +85,7 @@ class ContactBatch:
             int(self.counts[q, kb.COUNT_UNFOLDINGS]),
             int(p1 - p0),
             int(c1 - c0),
+            int(self.counts[q, kb.COUNT_SPHERES]),
         )
         return ContactSet(
             self.pairs[p0:p1],
@@ -129,6 +132,7 @@ class TreeBank:
             np.concatenate([t.first_child for t in trees]),
             np.concatenate([t.child_count for t in trees]),
             np.concatenate([_face_normals(t) for t in trees]),
+            np.concatenate([spheres(t) for t in trees]),
         )
         nodes = np.array([len(t) for t in trees], np.int64)
         faces = np.array([len(_face_normals(t)) for t in trees], np.int64)

@@ -60,6 +60,8 @@ class ContactStats:
     iterative, fallbacks : iterative evaluations and exact fallbacks
     unfoldings : node pairs unfolded
     raw_contacts, merged_contacts : contact points before and after merging
+    sphere_pruned : node pairs pruned by their bounding spheres, before any triangle
+        comparison (not counted as comparisons)
     """
 
     comparisons_per_level: tuple[int, ...] = ()
@@ -68,6 +70,7 @@ class ContactStats:
     unfoldings: int = 0
     raw_contacts: int = 0
     merged_contacts: int = 0
+    sphere_pruned: int = 0
 
     @property
     def comparisons(self) -> int:
@@ -149,7 +152,7 @@ def find_contacts(
         )
         m, k = contact_kernel(found, count, face_a, face_b, *contact, result)
         result = (result[0][:m], result[1][:k], result[2][:k], result[3][:k])
-    stats = ContactStats(*counters, len(result[0]), len(result[1]))
+    stats = ContactStats(*counters[:4], len(result[0]), len(result[1]), *counters[4:])
     return ContactSet(*result, stats)
 
 
@@ -209,6 +212,33 @@ def _node_set(tree: SurrogateTree, precision: str, leaves_only: bool) -> Triangl
     return cache[key]
 
 
+def spheres(tree: SurrogateTree) -> np.ndarray:
+    """(N, 4) float64 bounding sphere (centre, radius) of each node's covered leaves'
+    ε-regions, in the body frame (cached on the tree): centred on the bounding box of
+    the covered vertices, radius the farthest covered vertex plus the leaf ε (a ball is
+    convex, so it then holds every covered triangle and its ε-region)."""
+    if "_spheres" not in tree.__dict__:
+        out = np.empty((len(tree), 4))
+        low, high = np.empty((len(tree), 3)), np.empty((len(tree), 3))
+        leaves = tree.face >= 0
+        low[leaves], high[leaves] = tree.triangles[leaves].min(1), tree.triangles[leaves].max(1)
+        for node in np.flatnonzero(~leaves)[::-1]:  # children before parents (BFS order)
+            kids = slice(tree.first_child[node], tree.first_child[node] + tree.child_count[node])
+            low[node], high[node] = low[kids].min(0), high[kids].max(0)
+        out[:, :3] = (low + high) / 2
+        radius = np.zeros(len(tree))
+        node = np.flatnonzero(leaves)
+        verts = tree.triangles[node]
+        while len(node):  # every leaf's vertices against the centres of all its ancestors
+            far = np.linalg.norm(verts - out[node, None, :3], axis=2).max(1)
+            np.maximum.at(radius, node, far)
+            keep = tree.parent[node] >= 0
+            node, verts = tree.parent[node][keep], verts[keep]
+        out[:, 3] = radius + tree.leaf_epsilon
+        tree.__dict__["_spheres"] = out
+    return tree.__dict__["_spheres"]
+
+
 def _faces(tree: SurrogateTree) -> np.ndarray:
     """(F,) int32 0 … F−1: the face of each leaf when leaves are indexed in face order."""
     if "_faces" not in tree.__dict__:
@@ -256,8 +286,14 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
     sa = _node_set(tree_a, precision, False)
     master = _master(tree_b)
     coarse, leaf = query_parameters(kernel, dtype)
-    body_a = (sa.coords_rm, sa.frames_rm, tree_a.epsilon, *_structure(tree_a))
-    body_b = (master.coords_rm, master.frames_rm, tree_b.epsilon, *_structure(tree_b))
+    body_a = (sa.coords_rm, sa.frames_rm, tree_a.epsilon, *_structure(tree_a), spheres(tree_a))
+    body_b = (
+        master.coords_rm,
+        master.frames_rm,
+        tree_b.epsilon,
+        *_structure(tree_b),
+        spheres(tree_b),
+    )
     stats = np.zeros(tb.N_STATS, np.int64)
     levels = np.zeros(64, np.int64)
     margin = query_margin(extent(tree_a), extent(tree_b), pose[1], ULP[dtype])
@@ -269,6 +305,7 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
         int(stats[tb.STAT_ITERATIVE]),
         int(stats[tb.STAT_FALLBACKS]),
         int(unfoldings),
+        int(stats[tb.STAT_SPHERES]),
     )
     return result, counters
 

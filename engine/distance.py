@@ -80,7 +80,8 @@ class KernelStats:
 
     @classmethod
     def from_array(cls, counts: np.ndarray) -> KernelStats:
-        return cls(*(int(c) for c in counts[: tb.N_STATS]))
+        slots = (tb.STAT_PAIRS, tb.STAT_CULLED, tb.STAT_ITERATIVE, tb.STAT_FALLBACKS)
+        return cls(*(int(counts[k]) for k in slots))
 
 
 @dataclass(frozen=True)

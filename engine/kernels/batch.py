@@ -17,13 +17,14 @@ from numba import njit
 from .jit import JIT
 from .rigid import EXACT_JIT
 from .traversal import query_kernel
-from .triangle_batch import N_STATS, STAT_FALLBACKS, STAT_ITERATIVE, STAT_PAIRS
+from .triangle_batch import N_STATS, STAT_FALLBACKS, STAT_ITERATIVE, STAT_PAIRS, STAT_SPHERES
 
 MARGIN_ULPS = 256.0
 SQRT3 = np.sqrt(3.0)
 # Columns of the per-query counters written by :func:`batch_kernel`.
 COUNT_DEPTH, COUNT_UNFOLDINGS, COUNT_ITERATIVE, COUNT_FALLBACKS, COUNT_COMPARISONS = range(5)
-N_COUNTS = 5
+COUNT_SPHERES = 5
+N_COUNTS = 6
 
 
 @njit(**EXACT_JIT)
@@ -70,7 +71,8 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
 
     ``bank = (coords (N, 9), frames (N, 14)`` in the query precision, ``master
     coords, master frames`` float64, ``epsilon (N,)`` float64, ``face, first_child,
-    child_count (N,)`` int32, ``normals (F, 3)`` float64 unit face normals);
+    child_count (N,)`` int32, ``normals (F, 3)`` float64 unit face normals, ``spheres
+    (N, 4)`` float64 bounding spheres);
     ``meta = (node offset, node count, face offset, face count (T,) int64, leaf ε,
     bounding radius, extent (T,) float64)`` per tree; ``queries = (tree_a, tree_b
     (k,) int64, position_a (k, 3), orientation_a (k, 4), position_b, orientation_b)``;
@@ -82,7 +84,9 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
     points, normals, overlaps)``: query ``start + t`` owns rows
     ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs`` and likewise for contacts.
     """
-    coords, frames, master_coords, master_frames, epsilon, face, first, count, normals = bank
+    coords, frames, master_coords, master_frames, epsilon, face, first, count, normals, spheres = (
+        bank
+    )
     node_offset, node_count, face_offset, face_count, leaf_eps, radius, extent = meta
     tree_a, tree_b, position_a, orientation_a, position_b, orientation_b = queries
     coarse, leaf, keep_all, ulp, tiny = params
@@ -106,6 +110,7 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
             face[a0:a1],
             first[a0:a1],
             count[a0:a1],
+            spheres[a0:a1],
         )
         body_b = (
             master_coords[b0:b1],
@@ -114,6 +119,7 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
             face[b0:b1],
             first[b0:b1],
             count[b0:b1],
+            spheres[b0:b1],
         )
         rot_a, rotation, shift = relative_pose(
             position_a[q], orientation_a[q], position_b[q], orientation_b[q]
@@ -146,6 +152,7 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
         counts[t, COUNT_ITERATIVE] = stats[STAT_ITERATIVE]
         counts[t, COUNT_FALLBACKS] = stats[STAT_FALLBACKS]
         counts[t, COUNT_COMPARISONS] = stats[STAT_PAIRS]
+        counts[t, COUNT_SPHERES] = stats[STAT_SPHERES]
     n_pairs, n_contacts = pair_offsets[k], contact_offsets[k]
     return (
         pair_offsets,

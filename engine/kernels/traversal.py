@@ -19,9 +19,9 @@ import numpy as np
 from numba import njit
 
 from .contact_merge import contact_kernel
-from .jit import JIT
+from .jit import INLINE, JIT
 from .rigid import margin_kernel, move_kernel
-from .triangle_batch import ZERO, listed_kernel, listed_workspace
+from .triangle_batch import STAT_SPHERES, ZERO, listed_kernel, listed_workspace
 
 
 @njit(**JIT)
@@ -29,10 +29,16 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
     """Contacts between two posed trees; returns ``(depth, unfoldings, result)``.
 
     ``body_a = (coords (Na, 9), frames (Na, 14), epsilon (Na,) float64, face,
-    first_child, child_count (Na,) int32)``: A's nodes prepared in the query's
-    precision, row-major; ``body_b``: the same for B except that coordinates and
-    frames are B's float64 master arrays in its body frame. ``pose = (rotation
-    (3, 3), shift (3,))`` maps B's frame to A's. Surrogate ε get ``margin`` added.
+    first_child, child_count (Na,) int32, spheres (Na, 4) float64)``: A's nodes
+    prepared in the query's precision, row-major, and each node's bounding sphere
+    (centre, radius) of its covered leaves' ε-regions; ``body_b``: the same for B
+    except that coordinates and frames are B's float64 master arrays in its body
+    frame. ``pose = (rotation (3, 3), shift (3,))`` maps B's frame to A's.
+    Surrogate ε get ``margin`` added.
+
+    A node pair whose bounding spheres are apart (by more than ``margin``) cannot
+    hold a leaf pair in contact: it is pruned before any triangle comparison,
+    the root pair included; ``stats[STAT_SPHERES]`` counts such pairs.
     ``contact = (faces of B, keep_all, normals_a, setup)`` as in
     :func:`~engine.kernels.contact_merge.contact_kernel`. ``stats`` (int64) is
     added to; ``levels`` (int64) receives the pairs evaluated per level (levels
@@ -42,11 +48,13 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
     ``result = (pairs, points, normals, overlaps)`` the contacts, as
     ``contact_kernel`` writes them (trimmed; world frame).
     """
-    coords_a, frames_a, epsilon_a, face_a, first_a, count_a = body_a
-    master_coords, master_frames, epsilon_b, face_b, first_b, count_b = body_b
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
     rotation, shift = pose
     dtype = coords_a.dtype
     nb = master_coords.shape[0]
+    centres_b = np.empty((nb, 3))  # B's sphere centres in A's frame, once needed
+    centred = np.zeros(nb, np.bool_)
     coords_b = np.empty((nb, 9), dtype)
     frames_b = np.empty((nb, 14), dtype)
     moved = np.zeros(nb, np.bool_)
@@ -61,21 +69,27 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
     buffers = listed_workspace(coords_a)
     found = _buffers(256, coords_a)
     hits = _buffers(256, coords_a)
-    front = np.zeros((1, 2), np.int64)
+    pruned = ZERO
+    if _apart(spheres_a, ZERO, spheres_b, centres_b, centred, ZERO, rotation, shift, margin):
+        front = np.zeros((0, 2), np.int64)
+        pruned += 1
+    else:
+        front = np.zeros((1, 2), np.int64)
     finest = np.empty((256, 2), np.int64)
     coarse = np.empty((256, 2), np.int64)
     n = ZERO
     depth = ZERO
     unfoldings = ZERO
+    nf = ZERO  # leaf pairs, evaluated together once the front is exhausted
     while front.shape[0] > 0:
         m = front.shape[0]
         if depth < levels.shape[0]:
             levels[depth] = m
         depth += 1
-        if finest.shape[0] < m:
-            finest = np.empty((2 * m, 2), np.int64)
+        if coarse.shape[0] < m:
             coarse = np.empty((2 * m, 2), np.int64)
-        nf = ZERO
+        if finest.shape[0] < nf + m:
+            finest = _grown_pairs(finest, nf, nf + m)
         nc = ZERO
         for t in range(m):
             i, j = front[t, 0], front[t, 1]
@@ -85,11 +99,6 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
             else:
                 coarse[nc, 0], coarse[nc, 1] = i, j
                 nc += 1
-        if nf > 0:
-            found = _room(found, n, n + nf)
-            n = listed_kernel(
-                rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, buffers, found, n, stats
-            )
         if nc == 0:
             break
         hits = _room(hits, ZERO, nc)
@@ -101,30 +110,40 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
         size = ZERO
         for k in range(h):
             i, j = hi[k], hj[k]
-            if face_a[i] < 0 and (face_b[j] >= 0 or eps_a[i] >= eps_b[j]):
-                size += count_a[i]
-            else:
-                size += count_b[j]
+            size += max(count_a[i], 1) * max(count_b[j], 1)
         front = np.empty((size, 2), np.int64)
         r = ZERO
         new = ZERO
         for k in range(h):
             i, j = hi[k], hj[k]
-            if face_a[i] < 0 and (face_b[j] >= 0 or eps_a[i] >= eps_b[j]):
-                for c in range(first_a[i], first_a[i] + count_a[i]):
-                    front[r, 0], front[r, 1] = c, j
-                    r += 1
-            else:
-                for c in range(first_b[j], first_b[j] + count_b[j]):
-                    if not moved[c]:
-                        moved[c] = True
-                        to_move[new] = c
+            # unfold every surrogate of the pair (a leaf stays): one level per pair
+            a0, a1 = (first_a[i], first_a[i] + count_a[i]) if face_a[i] < 0 else (i, i + 1)
+            b0, b1 = (first_b[j], first_b[j] + count_b[j]) if face_b[j] < 0 else (j, j + 1)
+            for ca in range(a0, a1):
+                if b1 - b0 > 1 and _apart(
+                    spheres_a, ca, spheres_b, centres_b, centred, j, rotation, shift, margin
+                ):
+                    pruned += b1 - b0
+                    continue
+                for cb in range(b0, b1):
+                    if _apart(
+                        spheres_a, ca, spheres_b, centres_b, centred, cb, rotation, shift, margin
+                    ):
+                        pruned += 1
+                        continue
+                    if not moved[cb]:
+                        moved[cb] = True
+                        to_move[new] = cb
                         new += 1
-                    front[r, 0], front[r, 1] = i, c
+                    front[r, 0], front[r, 1] = ca, cb
                     r += 1
+        front = front[:r]
         move_kernel(
             master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b
         )
+    found = _room(found, ZERO, nf)
+    n = listed_kernel(rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, buffers, found, ZERO, stats)
+    stats[STAT_SPHERES] += pruned
     n_faces_b, keep_all, normals_a, setup = contact
     result = (
         np.empty((n, 2), np.int64),
@@ -137,6 +156,24 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
         found, n, face_a, face_b, n_faces_b, keep_all, normals_a, setup, result
     )
     return depth, unfoldings, (pairs[:count], points[:k], normals[:k], overlaps[:k])
+
+
+@njit(**INLINE)
+def _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, margin):
+    """Bounding spheres of A's node ``i`` and B's node ``j`` are apart by more than
+    ``margin`` (B's centre is moved into A's frame on first use)."""
+    if not centred[j]:
+        x, y, z = spheres_b[j, 0], spheres_b[j, 1], spheres_b[j, 2]
+        for c in range(3):
+            centres_b[j, c] = (
+                rotation[c, 0] * x + rotation[c, 1] * y + rotation[c, 2] * z + shift[c]
+            )
+        centred[j] = True
+    dx = spheres_a[i, 0] - centres_b[j, 0]
+    dy = spheres_a[i, 1] - centres_b[j, 1]
+    dz = spheres_a[i, 2] - centres_b[j, 2]
+    reach = spheres_a[i, 3] + spheres_b[j, 3] + margin
+    return dx * dx + dy * dy + dz * dz > reach * reach
 
 
 @njit(**JIT)
@@ -152,6 +189,14 @@ def _buffers(capacity, like):
         np.empty((3, capacity), dtype),
         np.empty(capacity, np.int8),
     )
+
+
+@njit(**JIT)
+def _grown_pairs(pairs, n, need):
+    """``(max(need, 2·len), 2)`` int64 rows holding the first ``n`` rows of ``pairs``."""
+    grown = np.empty((max(need, 2 * pairs.shape[0]), 2), np.int64)
+    grown[:n] = pairs[:n]
+    return grown
 
 
 @njit(**JIT)

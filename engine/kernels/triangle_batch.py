@@ -42,7 +42,8 @@ ZERO = np.int64(0)
 BLOCK = 256
 # Counter slots of the ``stats`` output (int64).
 STAT_PAIRS, STAT_CULLED, STAT_ITERATIVE, STAT_FALLBACKS = 0, 1, 2, 3
-N_STATS = 4
+STAT_SPHERES = 4  # node pairs pruned by bounding spheres (the traversal only)
+N_STATS = 5
 
 
 @njit(**JIT)
