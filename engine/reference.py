@@ -24,6 +24,8 @@ Nothing here is fast; it is an oracle for the tests, never for production.
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import numpy as np
 
 __all__ = [
@@ -37,6 +39,7 @@ __all__ = [
 ]
 
 _EDGES = ((0, 1), (1, 2), (2, 0))
+_SLIVER = 1e-6  # sin² of the angle at a below which the closest point is found exactly
 
 
 def _vec(x, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -95,6 +98,8 @@ def closest_point_on_triangle_naive(p, tri) -> np.ndarray:
     for slivers).
     A zero-area triangle (all three region denominators vanish) is the union of
     its edges, so its closest point is the nearest of the three edge points.
+    A nearly collinear triangle (sin² of its angle at ``a`` below 1e-6) is solved in
+    exact rational arithmetic: in floating point its region tests cancel.
     """
     p = _vec(p, (3,), "p")
     tri = _vec(tri, (3, 3), "tri")
@@ -102,6 +107,8 @@ def closest_point_on_triangle_naive(p, tri) -> np.ndarray:
     ab, ac, ap = b - a, c - a, p - a
 
     n = _cross(ab, ac)
+    if 0.0 < float(n @ n) <= _SLIVER * float(ab @ ab) * float(ac @ ac):
+        return _closest_point_exact(p, tri)
     if float(n @ n) == 0.0:
         # Degenerate triangle: a segment or a point, i.e. the union of its edges.
         cands = [_closest_on_segment(p, tri[i], tri[j]) for i, j in _EDGES]
@@ -140,6 +147,50 @@ def closest_point_on_triangle_naive(p, tri) -> np.ndarray:
     # which is the orthogonal projection of p on the plane; for slivers va, vb and vc
     # are differences of nearly equal products, so the projection is computed directly.
     return p - (float(ap @ n) / float(n @ n)) * n
+
+
+def _closest_point_exact(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """:func:`closest_point_on_triangle_naive` for a non-degenerate triangle, in exact
+    rational arithmetic (Ericson's region tests and barycentric face point), rounded
+    to float64 at the end."""
+    q = [Fraction(float(x)) for x in p]
+    a, b, c = ([Fraction(float(x)) for x in v] for v in tri)
+
+    def sub(u, v):
+        return [u[0] - v[0], u[1] - v[1], u[2] - v[2]]
+
+    def dot(u, v):
+        return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+    def point(origin, weights):  # origin + Σ w_k e_k
+        return np.array([float(origin[i] + sum(w * e[i] for w, e in weights)) for i in range(3)])
+
+    ab, ac, ap, bp, cp = sub(b, a), sub(c, a), sub(q, a), sub(q, b), sub(q, c)
+    d1, d2, d3, d4, d5, d6 = (
+        dot(ab, ap),
+        dot(ac, ap),
+        dot(ab, bp),
+        dot(ac, bp),
+        dot(ab, cp),
+        dot(ac, cp),
+    )
+    if d1 <= 0 and d2 <= 0:
+        return point(a, [])
+    if d3 >= 0 and d4 <= d3:
+        return point(b, [])
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0 and d1 >= 0 and d3 <= 0:
+        return point(a, [(d1 / (d1 - d3), ab)])
+    if d6 >= 0 and d5 <= d6:
+        return point(c, [])
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0 and d2 >= 0 and d6 <= 0:
+        return point(a, [(d2 / (d2 - d6), ac)])
+    va = d3 * d6 - d5 * d4
+    if va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
+        return point(b, [((d4 - d3) / ((d4 - d3) + (d5 - d6)), sub(c, b))])
+    total = va + vb + vc
+    return point(a, [(vb / total, ab), (vc / total, ac)])
 
 
 def point_triangle_distance_naive(p, tri) -> float:

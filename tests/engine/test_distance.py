@@ -595,3 +595,21 @@ def test_reference_segment_segment_textbook_cases():
     assert d == pytest.approx(1.0) and np.allclose(p, x) and np.allclose(q, x + y)
     d, _, _ = segment_segment_naive(o, 2 * x, 0.5 * x + y, 1.5 * x + y)  # parallel overlap
     assert d == pytest.approx(1.0)
+
+
+def test_reference_point_triangle_on_near_collinear_triangles():
+    # in floating point, Ericson's region tests cancel for slivers; the reference then
+    # solves exactly. Oracle: the triangle is within its height h of its longest edge.
+    rng = np.random.default_rng(11)
+    for k in range(600):  # half collinear up to rounding only, half slightly bent
+        a, u = rng.normal(size=3), rng.normal(size=3)
+        off = rng.normal(size=3) * 10 ** rng.uniform(-12, -5) * (k % 2)
+        tri = np.array([a, a + u, a + rng.uniform(-1, 2) * u + off])
+        p = rng.normal(size=3) * 2
+        edges = [(tri[i], tri[j]) for i, j in ((0, 1), (1, 2), (2, 0))]
+        to_edges = min(segment_segment_naive(p, p, q0, q1)[0] for q0, q1 in edges)
+        height = np.linalg.norm(np.cross(tri[1] - tri[0], tri[2] - tri[0])) / max(
+            np.linalg.norm(q1 - q0) for q0, q1 in edges
+        )
+        d = point_triangle_distance_naive(p, tri)
+        assert to_edges - height - 1e-12 <= d <= to_edges + 1e-12
