@@ -14,3 +14,16 @@ def best_time(fn, repeat: int = 5) -> float:
         fn()
         times.append(time.perf_counter() - start)
     return min(times)
+
+
+def per_call(fn, calls: int = 200, repeat: int = 7) -> float:
+    """Seconds per call of ``fn``: the best of ``repeat`` loops of ``calls`` calls (for
+    calls of microseconds, where one call's timing is mostly noise)."""
+    fn()
+    best = float("inf")
+    for _ in range(repeat):
+        start = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        best = min(best, (time.perf_counter() - start) / calls)
+    return best
