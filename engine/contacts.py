@@ -286,11 +286,10 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
     sa = _node_set(tree_a, precision, False)
     master = _master(tree_b)
     coarse, leaf = query_parameters(kernel, dtype)
-    body_a = (sa.coords_rm, sa.frames_rm, tree_a.epsilon, *_structure(tree_a), spheres(tree_a))
+    body_a = (sa.coords_rm, sa.frames_rm, *_structure(tree_a), spheres(tree_a))
     body_b = (
         master.coords_rm,
         master.frames_rm,
-        tree_b.epsilon,
         *_structure(tree_b),
         spheres(tree_b),
     )
@@ -325,8 +324,15 @@ def query_parameters(kernel: str, dtype) -> tuple[tuple, tuple]:
     )
 
 
-def _structure(tree: SurrogateTree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return tree.face, tree.first_child, tree.child_count
+def _structure(tree: SurrogateTree) -> tuple[np.ndarray, ...]:
+    """Writable copies of ``(epsilon, face, first_child, child_count)`` (cached). The
+    tree's own arrays are read-only, and Numba compiles a kernel once more for every
+    read-only/writable combination of its arguments: every kernel gets writable arrays."""
+    if "_structure" not in tree.__dict__:
+        tree.__dict__["_structure"] = tuple(
+            np.array(a) for a in (tree.epsilon, tree.face, tree.first_child, tree.child_count)
+        )
+    return tree.__dict__["_structure"]
 
 
 def _active_sets(tree_a, tree_b, pose, kernel, precision):
@@ -336,8 +342,8 @@ def _active_sets(tree_a, tree_b, pose, kernel, precision):
     sb = TriangleSet.prepared(*(x.T for x in _moved(tree_b, pose, np.arange(len(tree_b)), dtype)))
     margin = query_margin(extent(tree_a), extent(tree_b), pose[1], ULP[dtype])
     eps_a, eps_b = np.empty(len(tree_a), dtype), np.empty(len(tree_b), dtype)
-    margin_kernel(tree_a.epsilon, tree_a.face, margin, eps_a)
-    margin_kernel(tree_b.epsilon, tree_b.face, margin, eps_b)
+    margin_kernel(*_structure(tree_a)[:2], margin, eps_a)
+    margin_kernel(*_structure(tree_b)[:2], margin, eps_b)
     surrogate_kernel = "exact" if kernel == "exact" else "iterative"
     active_a, active_b = np.zeros(1, np.int64), np.zeros(1, np.int64)
     found, per_level, iterative, fallbacks, unfoldings = [], [], 0, 0, 0
@@ -373,7 +379,8 @@ def _active_sets(tree_a, tree_b, pose, kernel, precision):
         )
 
     counters = (tuple(per_level), iterative, fallbacks, unfoldings)
-    return _found(pairs[keep], Stacked), len(keep), tree_a.face, tree_b.face, counters
+    faces = _structure(tree_a)[1], _structure(tree_b)[1]
+    return _found(pairs[keep], Stacked), len(keep), *faces, counters
 
 
 def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
