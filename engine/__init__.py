@@ -5,6 +5,7 @@ Never imports ``service`` or ``clients``.
 
 from . import shapes
 from .batch import ContactBatch, TreeBank, find_contacts_batch
+from .broadphase import candidate_pairs
 from .contacts import ContactSet, ContactStats, find_contacts
 from .distance import (
     DEFAULT_ITERATIONS,
@@ -17,8 +18,11 @@ from .distance import (
     triangle_distances,
 )
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
+from .forces import ContactModel, HertzSpring, LinearSpring, PaperSpring
 from .mesh import MassProperties, Mesh, load_mesh
+from .picard import StepStats
 from .pose import Pose
+from .scene import SCHEMES, Scene, SceneState
 from .tree import SurrogateTree, TreeStats, build_tree
 from .warmup import warmup
 
@@ -28,6 +32,15 @@ __all__ = [
     "Pose",
     "find_contacts",
     "ContactBatch",
+    "candidate_pairs",
+    "ContactModel",
+    "HertzSpring",
+    "LinearSpring",
+    "PaperSpring",
+    "SCHEMES",
+    "Scene",
+    "SceneState",
+    "StepStats",
     "TreeBank",
     "find_contacts_batch",
     "DEFAULT_ITERATIONS",

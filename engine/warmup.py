@@ -11,6 +11,7 @@ from .batch import find_contacts_batch
 from .contacts import find_contacts
 from .distance import TriangleSet, triangle_contacts, triangle_distances
 from .pose import Pose
+from .scene import SCHEMES, Scene
 from .shapes import box
 from .surrogates import FITS
 from .tree import build_tree
@@ -47,4 +48,10 @@ def warmup() -> float:
                     hierarchy=hierarchy,
                     precision=precision,
                 )
+    scene = Scene(gravity=(0.0, 0.0, -9.81))  # broad phase, forces, motion update
+    scene.add_plane(size=4.0, divisions=2)
+    scene.add_body(box(), position=(0.0, 0.0, 0.505), angular_velocity=(0.0, 0.0, 1.0))
+    scene.add_body(box(), position=(0.3, 0.0, 1.52))
+    for scheme in SCHEMES:
+        scene.step(1e-3, scheme)
     return time.perf_counter() - start

@@ -1,0 +1,279 @@
+"""Time stepping of a :class:`~engine.scene.Scene` (paper §2 Algorithms 1 and 3, §5).
+
+* ``explicit`` — Algorithm 1 in the Euler–Cromer order the paper mentions: forces of the
+  current configuration, then ``v' = v + dt·F/m``, ``L' = L + dt·τ``, and the pose moves
+  with the new velocities. Unlike the forward order (pose first) it does not pump energy
+  into an undamped contact spring, and it conserves linear and angular momentum to
+  rounding (torques are taken about the step's starting centres of mass).
+* ``implicit`` — Algorithm 3: Picard iterations on the end-of-step velocities; each
+  iteration finds the contacts of the guessed configuration with the flat search, and
+  moves every body from the step's start with the (relaxed) forces.
+* ``implicit-surrogate`` — the same with the multiresolution search in every iteration.
+
+Picard relaxation (the paper's "weighted average between the currently computed forces
+and the forces of the previous step"): the applied forces move towards each iteration's
+computed forces by a factor β; β grows by ``GROW`` while successive corrections point the
+same way (forces that "pull into one direction" take bigger steps, up to ``BETA_MAX``)
+and shrinks by ``SHRINK`` when they reverse (oscillations die out). β is one number for
+all bodies, so every contact still applies equal and opposite forces: momentum is
+conserved exactly at every iteration. Converged when no body's force or torque changed
+by more than ``picard_tolerance`` (1 %) of its magnitude between two iterations (plus
+1e-9 of the scene's force scale, so that zero forces converge). A step that does not
+converge within ``max_picard_iterations`` says so in its :class:`StepStats`; with
+``max_halvings > 0`` it is redone as two half steps.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kernels import dynamics as kd
+
+__all__ = ["StepStats", "step"]
+
+BETA_MAX = 1.5
+BETA_MIN = 0.01
+_ATOL = 1e-9
+
+
+@dataclass(frozen=True)
+class StepStats:
+    """What one time step did.
+
+    scheme : str; dt : float — the step (its halves, if it was retried, are included)
+    converged : bool — Picard converged (always True for ``explicit``)
+    picard_iterations : int — force evaluations (1 for ``explicit``)
+    body_pairs : int — body pairs of the narrow phase, last evaluation
+    contacts : int — merged contact points, last evaluation
+    triangle_pairs : int — finest-level triangle pairs in contact, last evaluation
+    comparisons, iterative, fallbacks, sphere_pruned, unfoldings : int — search counters
+        summed over all evaluations
+    max_overlap : float — largest overlap / (ε_a + ε_b) at the end of the step
+    elastic_energy : float — energy stored in the contact springs, last evaluation
+    halvings : int — how many times the step was split because Picard did not converge
+    seconds : float — wall time
+    """
+
+    scheme: str
+    dt: float
+    converged: bool
+    picard_iterations: int
+    body_pairs: int
+    contacts: int
+    triangle_pairs: int
+    comparisons: int
+    iterative: int
+    fallbacks: int
+    sphere_pruned: int
+    unfoldings: int
+    max_overlap: float
+    elastic_energy: float
+    halvings: int
+    seconds: float
+
+
+def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> StepStats:
+    """Advance ``scene`` by ``dt`` with ``scheme`` (see the module docstring)."""
+    start = time.perf_counter()
+    left = scene.max_halvings if halvings_left is None else halvings_left
+    state = _state(scene)
+    if scheme == "explicit":
+        stats = _explicit(scene, dt)
+    else:
+        stats = _picard(scene, dt, hierarchy=scheme == "implicit-surrogate")
+    if not stats["converged"] and left > 0:
+        _restore(scene, state)
+        first = step(scene, dt / 2, scheme, left - 1)
+        second = step(scene, dt / 2, scheme, left - 1)
+        return _merged(first, second, dt, time.perf_counter() - start)
+    scene.time += dt
+    return StepStats(scheme=scheme, dt=dt, halvings=0, seconds=time.perf_counter() - start, **stats)
+
+
+def _explicit(scene, dt: float) -> dict:
+    x, q, v, w = _state(scene)
+    normal, friction, _, contacts, energy = _forces(scene, (x, q, v, w), x, hierarchy=True)
+    out = tuple(np.empty_like(a) for a in (x, q, v, w))
+    force, torque = normal[0] + friction[0], normal[1] + friction[1]
+    _advance(scene, (x, q, v, w), force, torque, dt, out)
+    _restore(scene, out)
+    return _summary(scene, contacts, [contacts.counters], energy, True, 1)
+
+
+def _picard(scene, dt: float, hierarchy: bool) -> dict:
+    start = _state(scene)
+    guess = tuple(a.copy() for a in start)
+    radius = _radii(scene)
+    applied, residual, beta = None, [None, None], [1.0, 1.0]
+    counters, converged, iterations = [], False, 0
+    while iterations < scene.max_picard_iterations:
+        iterations += 1
+        normal, friction, stiffness, contacts, energy = _forces(scene, guess, start[0], hierarchy)
+        computed = (normal, friction)
+        counters.append(contacts.counters)
+        if applied is None:  # the forces of the step's start, then the first relaxation
+            applied = [
+                (normal[0].copy(), normal[1].copy()),
+                (friction[0].copy(), friction[1].copy()),
+            ]
+            beta = _first_weights(scene, stiffness, radius, dt)
+        else:
+            total = (normal[0] + friction[0], normal[1] + friction[1])
+            change = [(c[0] - a[0], c[1] - a[1]) for c, a in zip(computed, applied, strict=True)]
+            mismatch = (change[0][0] + change[1][0], change[0][1] + change[1][1])
+            converged = _settled(scene, total, mismatch, radius, scene.picard_tolerance)
+            if converged:
+                break
+            for part in range(2):  # normal and friction forces, each with its own weight
+                new = np.concatenate(
+                    [change[part][0].ravel(), (change[part][1] / radius[:, None]).ravel()]
+                )
+                beta[part] = _aitken(beta[part], residual[part], new)
+                residual[part] = new
+                applied[part] = tuple(
+                    a + beta[part] * c for a, c in zip(applied[part], change[part], strict=True)
+                )
+        force = applied[0][0] + applied[1][0]
+        torque = applied[0][1] + applied[1][1]
+        _advance(scene, start, force, torque, dt, guess)
+    _restore(scene, guess)
+    return _summary(scene, contacts, counters, energy, converged, iterations)
+
+
+def _aitken(beta: float, previous, current) -> float:
+    """Aitken's relaxation, safeguarded: the weight that would have cancelled the last
+    swing of the residual (it halves when residuals alternate and grows while they keep
+    their direction), but at most half the last weight when the residual grew and at most
+    twice it otherwise; clamped to [BETA_MIN, BETA_MAX]."""
+    if previous is not None:
+        swing = current - previous
+        norm = float(swing @ swing)
+        proposal = -beta * float(previous @ swing) / norm if norm > 0 else beta
+        grew = float(current @ current) > float(previous @ previous)
+        beta = min(proposal, 0.5 * beta) if grew else min(proposal, 2.0 * beta)
+    return min(max(beta, BETA_MIN), BETA_MAX)
+
+
+def _first_weights(scene, stiffness, radius, dt: float) -> list[float]:
+    """1/(1 + λ) for the normal and the friction forces, λ the largest per-body gain of a
+    Picard sweep: dt²·Σk (spring) and dt·Σc (friction) times (1/m + R²/I_min)."""
+    free = ~scene.fixed
+    if not free.any():
+        return [1.0, 1.0]
+    smallest = np.linalg.eigvalsh(scene.inertia[free])[:, 0]
+    mobility = 1.0 / scene.masses[free] + radius[free] ** 2 / smallest
+    gain_n = float((dt * dt * stiffness[free, 0] * mobility).max())
+    gain_t = float((dt * stiffness[free, 1] * mobility).max())
+    return [1.0 / (1.0 + gain_n), 1.0 / (1.0 + gain_t)]
+
+
+def _radii(scene) -> np.ndarray:
+    """(n,) bounding radius of each body's mesh (a lever that makes torques force-like)."""
+    return np.array([max(t.bounding_radius, 1e-12) for t in scene.trees])[scene.tree_index]
+
+
+def _forces(scene, configuration, origins, hierarchy: bool):
+    """Normal (with gravity and external) and friction forces and torques ``(n, 3)`` of a
+    configuration, the per-body contact stiffness sums, the contacts and the elastic energy."""
+    x, q, v, w = configuration
+    contacts = scene.contacts(x, q, hierarchy=hierarchy)
+    free = ~scene.fixed
+    force = np.zeros_like(x)
+    force[free] = scene.masses[free, None] * scene.gravity + scene.external_forces[free]
+    torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
+    stiffness = np.zeros((len(x), 2))
+    energy = kd.contact_forces(
+        contacts.bodies,
+        contacts.offsets,
+        contacts.points,
+        contacts.normals,
+        contacts.overlaps,
+        (x, v, w, origins),
+        (scene.masses, scene.epsilon),
+        scene.contact_model.parameters(),
+        (force, torque, friction_force, friction_torque, stiffness),
+    )
+    for array in (force, torque, friction_force, friction_torque):
+        array[~free] = 0.0
+    return (force, torque), (friction_force, friction_torque), stiffness, contacts, energy
+
+
+def _settled(scene, computed, mismatch, radius, tolerance: float) -> bool:
+    """Self-consistent: every free body's computed force and torque differ from the applied
+    ones (``mismatch``) by at most ``tolerance`` of their size (torques: at least the lever
+    times the force, so that a head-on contact's near-zero torque does not block)."""
+    free = ~scene.fixed
+    force, torque = computed[0][free], computed[1][free]
+    size_f = np.linalg.norm(force, axis=1)
+    size_t = np.maximum(np.linalg.norm(torque, axis=1), radius[free] * size_f)
+    floor = _ATOL * max(float(size_f.max(initial=0.0)), _weight_scale(scene))
+    bad_f = np.linalg.norm(mismatch[0][free], axis=1) > tolerance * size_f + floor
+    bad_t = np.linalg.norm(mismatch[1][free], axis=1) > tolerance * size_t + floor * radius[free]
+    return not (bad_f.any() or bad_t.any())
+
+
+def _weight_scale(scene) -> float:
+    free = ~scene.fixed
+    return float((scene.masses[free] * np.linalg.norm(scene.gravity)).max(initial=0.0))
+
+
+def _advance(scene, start, force, torque, dt: float, out) -> None:
+    inverse_mass = np.where(scene.fixed, 0.0, 1.0 / scene.masses)
+    kd.advance(start, force, torque, inverse_mass, scene.inertia, scene.inverse_inertia, dt, out)
+
+
+def _summary(scene, contacts, counters, energy, converged: bool, iterations: int) -> dict:
+    totals = {k: sum(c[k] for c in counters) for k in counters[0] if k != "triangle_pairs"}
+    eps = scene.epsilon
+    reach = eps[contacts.bodies[:, 0]] + eps[contacts.bodies[:, 1]] if len(contacts.bodies) else []
+    worst = 0.0
+    for q in range(len(contacts.bodies)):
+        rows = contacts.overlaps[contacts.offsets[q] : contacts.offsets[q + 1]]
+        if len(rows):
+            worst = max(worst, float(rows.max() / reach[q]))
+    return {
+        "converged": bool(converged),
+        "picard_iterations": iterations,
+        "body_pairs": len(contacts.bodies),
+        "contacts": len(contacts.points),
+        "triangle_pairs": counters[-1]["triangle_pairs"],
+        "max_overlap": worst,
+        "elastic_energy": float(energy),
+        **totals,
+    }
+
+
+def _merged(first: StepStats, second: StepStats, dt: float, seconds: float) -> StepStats:
+    summed = ("picard_iterations", "comparisons", "iterative", "fallbacks", "sphere_pruned")
+    return StepStats(
+        scheme=second.scheme,
+        dt=dt,
+        converged=first.converged and second.converged,
+        body_pairs=second.body_pairs,
+        contacts=second.contacts,
+        triangle_pairs=second.triangle_pairs,
+        unfoldings=first.unfoldings + second.unfoldings,
+        max_overlap=max(first.max_overlap, second.max_overlap),
+        elastic_energy=second.elastic_energy,
+        halvings=1 + first.halvings + second.halvings,
+        seconds=seconds,
+        **{k: getattr(first, k) + getattr(second, k) for k in summed},
+    )
+
+
+def _state(scene) -> tuple[np.ndarray, ...]:
+    return (
+        scene.positions.copy(),
+        scene.orientations.copy(),
+        scene.velocities.copy(),
+        scene.angular_velocities.copy(),
+    )
+
+
+def _restore(scene, state) -> None:
+    scene.positions, scene.orientations, scene.velocities, scene.angular_velocities = (
+        a.copy() for a in state
+    )

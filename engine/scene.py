@@ -1,0 +1,492 @@
+"""Scenes of rigid bodies: state, instancing, contacts between all bodies (paper §2, §6).
+
+A :class:`Scene` owns float64 state arrays — centre-of-mass ``positions (n, 3)``, unit
+quaternions ``orientations (n, 4)`` (w, x, y, z), world-frame ``velocities`` and
+``angular_velocities (n, 3)`` — plus per-body mass, body-frame inertia about the centre
+of mass, a fixed flag and an external force. Bodies share surrogate trees (instancing):
+a mesh added twice with the same ε is built once, and a body stores only the index of
+its tree and the offset of its centre of mass in the mesh frame. Planes and walls are
+fixed bodies (infinite mass); open meshes may only be fixed.
+
+Contacts of a configuration: bounding spheres of the trees' roots go through the broad
+phase (never a fixed–fixed pair); the candidate pairs go through the multiresolution
+search in one batched call (:class:`~engine.batch.TreeBank`), or the flat search pair by
+pair. Time stepping lives in :mod:`engine.picard`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .arguments import check_kernel, check_precision
+from .batch import TreeBank
+from .broadphase import candidate_pairs
+from .contacts import find_contacts, spheres
+from .errors import InvalidArgumentError, InvalidMeshError
+from .forces import ContactModel, PaperSpring
+from .kernels import dynamics as kd
+from .mesh import Mesh
+from .pose import Pose
+from .shapes import plane
+from .tree import SurrogateTree, build_tree
+
+__all__ = ["SCHEMES", "Scene", "SceneState"]
+
+SCHEMES = ("explicit", "implicit", "implicit-surrogate")
+DEFAULT_RELATIVE_EPSILON = 0.01
+"""A body's ε when not given: this fraction of its mesh's diameter (DESIGN §5), taken as
+twice the largest distance of a vertex from the vertices' mean (rotation invariant; 1 for
+a unit-diameter sphere)."""
+
+
+@dataclass(frozen=True)
+class SceneState:
+    """A copy of a scene's state (float64, world frame).
+
+    positions : (n, 3) — centres of mass (a fixed open mesh: its mesh-frame origin)
+    orientations : (n, 4) — unit quaternions (w, x, y, z)
+    velocities, angular_velocities : (n, 3)
+    masses : (n,) — ``inf`` for fixed bodies
+    time : float
+    """
+
+    positions: np.ndarray
+    orientations: np.ndarray
+    velocities: np.ndarray
+    angular_velocities: np.ndarray
+    masses: np.ndarray
+    time: float
+
+
+@dataclass(frozen=True)
+class Contacts:
+    """Contacts of one configuration, as the force kernel takes them.
+
+    bodies : (k, 2) int64 body pairs (a < b) tested in the narrow phase
+    offsets : (k + 1,) int64 — pair q owns rows ``offsets[q]:offsets[q + 1]``
+    points, normals : (c, 3); overlaps : (c,)
+    counters : dict of summed search counters (comparisons, iterative, fallbacks,
+        sphere_pruned, unfoldings, triangle_pairs)
+    """
+
+    bodies: np.ndarray
+    offsets: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    overlaps: np.ndarray
+    counters: dict
+
+
+class Scene:
+    """Rigid bodies with contacts, stepped in time (see :meth:`step`).
+
+    Parameters
+    ----------
+    gravity : (3,) float — acceleration of every free body (default −9.81 along z)
+    contact_model : ContactModel — force law (default :class:`~engine.forces.PaperSpring`)
+    scheme : str — default time-stepping scheme, one of :data:`SCHEMES`
+    kernel, precision : the contact search's leaf kernel and arithmetic
+    picard_tolerance : float — Picard converges when every body's force and torque
+        change by less than this fraction between iterations (the paper's 1 %)
+    max_picard_iterations : int
+    max_halvings : int — a step whose Picard iteration does not converge is redone as two
+        half steps, at most this deep (0: report the failure in the step's stats only)
+    threads : int, optional — worker threads of the narrow phase (default: all cores)
+    """
+
+    def __init__(
+        self,
+        gravity=(0.0, 0.0, -9.81),
+        contact_model: ContactModel | None = None,
+        scheme: str = "implicit-surrogate",
+        kernel: str = "hybrid",
+        precision: str = "float64",
+        picard_tolerance: float = 0.01,
+        max_picard_iterations: int = 50,
+        max_halvings: int = 0,
+        threads: int | None = None,
+    ) -> None:
+        self.gravity = _vector(gravity, 3, "gravity")
+        model = PaperSpring() if contact_model is None else contact_model
+        if not isinstance(model, ContactModel):
+            raise InvalidArgumentError("contact_model must be an engine.ContactModel")
+        self.contact_model = model
+        self.scheme = _scheme(scheme)
+        check_kernel(kernel), check_precision(precision)
+        self.kernel, self.precision = kernel, precision
+        if not (0 < float(picard_tolerance) < 1):
+            raise InvalidArgumentError(
+                f"picard_tolerance must be in (0, 1), got {picard_tolerance}"
+            )
+        if int(max_picard_iterations) < 1:
+            raise InvalidArgumentError("max_picard_iterations must be >= 1")
+        self.picard_tolerance = float(picard_tolerance)
+        self.max_picard_iterations = int(max_picard_iterations)
+        if int(max_halvings) < 0:
+            raise InvalidArgumentError("max_halvings must be >= 0")
+        self.max_halvings = int(max_halvings)
+        self.threads = threads
+        self.time = 0.0
+        self.trees: list[SurrogateTree] = []
+        self._tree_keys: dict[tuple, int] = {}
+        self._bank: TreeBank | None = None
+        n = 0
+        self.positions = np.zeros((n, 3))
+        self.orientations = np.zeros((n, 4))
+        self.velocities = np.zeros((n, 3))
+        self.angular_velocities = np.zeros((n, 3))
+        self.masses = np.zeros(n)
+        self.inertia = np.zeros((n, 3, 3))
+        self.inverse_inertia = np.zeros((n, 3, 3))
+        self.centers = np.zeros((n, 3))  # centre of mass in the mesh frame
+        self.tree_index = np.zeros(n, np.int64)
+        self.fixed = np.zeros(n, bool)
+        self.external_forces = np.zeros((n, 3))
+
+    # ------------------------------------------------------------------ building
+    def __len__(self) -> int:
+        return len(self.masses)
+
+    def add_body(
+        self,
+        body: Mesh | SurrogateTree,
+        position=(0.0, 0.0, 0.0),
+        orientation=(1.0, 0.0, 0.0, 0.0),
+        velocity=(0.0, 0.0, 0.0),
+        angular_velocity=(0.0, 0.0, 0.0),
+        density: float | None = None,
+        mass: float | None = None,
+        fixed: bool = False,
+        epsilon: float | None = None,
+    ) -> int:
+        """Add a body; returns its index.
+
+        Parameters
+        ----------
+        body : Mesh or SurrogateTree — a mesh gets a tree with ε = ``epsilon`` (default
+            1 % of its diameter, :data:`DEFAULT_RELATIVE_EPSILON`), shared with every body
+            of the same mesh and ε; a tree keeps its own leaf ε
+        position : (3,) — world position of the centre of mass (of the mesh-frame origin
+            for a fixed open mesh)
+        orientation : (4,) — unit quaternion (w, x, y, z)
+        velocity, angular_velocity : (3,) — world frame (ignored for fixed bodies)
+        density, mass : float — at most one; default density 1 (closed meshes only)
+        fixed : bool — immovable (infinite mass)
+        """
+        pose = Pose(position, orientation)  # validates both
+        velocity = _vector(velocity, 3, "velocity")
+        angular_velocity = _vector(angular_velocity, 3, "angular_velocity")
+        if density is not None and mass is not None:
+            raise InvalidArgumentError("give density or mass, not both")
+        tree, mesh = self._tree(body, epsilon)
+        if fixed:
+            try:
+                center = mesh.center_mass
+            except InvalidMeshError:
+                center = np.zeros(3)  # an open mesh: its own origin
+            m, inertia, inverse = math.inf, np.eye(3), np.zeros((3, 3))
+            velocity, angular_velocity = np.zeros(3), np.zeros(3)
+        else:
+            try:
+                unit = mesh.mass_properties(1.0)
+            except InvalidMeshError as exc:
+                raise InvalidArgumentError(f"a free body needs a closed mesh: {exc}") from None
+            scale = _density(density, mass, unit.volume)
+            m, center = unit.mass * scale, unit.center_mass
+            inertia = unit.inertia * scale
+            inverse = np.linalg.inv(inertia)
+        self._append(
+            position=pose.position,
+            orientation=pose.orientation,
+            velocity=velocity,
+            angular_velocity=angular_velocity,
+            mass=m,
+            inertia=inertia,
+            inverse_inertia=inverse,
+            center=center,
+            tree=tree,
+            fixed=bool(fixed),
+        )
+        return len(self) - 1
+
+    def add_plane(
+        self,
+        point=(0.0, 0.0, 0.0),
+        normal=(0.0, 0.0, 1.0),
+        size: float = 10.0,
+        divisions: int = 16,
+        epsilon: float = 0.01,
+    ) -> int:
+        """Add a fixed square plane of side ``size`` centred at ``point``, facing ``normal``
+        (2·divisions² triangles, ε = ``epsilon``); returns its index."""
+        n = _vector(normal, 3, "normal")
+        length = float(np.linalg.norm(n))
+        if length == 0:
+            raise InvalidArgumentError("normal must not be zero")
+        n = n / length
+        z = np.array([0.0, 0.0, 1.0])
+        axis, cos = np.cross(z, n), float(z @ n)
+        if np.linalg.norm(axis) < 1e-12:  # (anti)parallel to z
+            q = [1.0, 0.0, 0.0, 0.0] if cos > 0 else [0.0, 1.0, 0.0, 0.0]
+        else:
+            half = math.acos(max(-1.0, min(1.0, cos))) / 2
+            axis = axis / np.linalg.norm(axis) * math.sin(half)
+            q = [math.cos(half), *axis]
+        mesh = plane(size=(size, size), divisions=divisions)
+        return self.add_body(mesh, position=point, orientation=q, fixed=True, epsilon=epsilon)
+
+    def set_external_force(self, body: int, force) -> None:
+        """Constant world-frame force on ``body`` (added to gravity every step)."""
+        self.external_forces[self._body(body)] = _vector(force, 3, "force")
+
+    # ------------------------------------------------------------------ state
+    @property
+    def state(self) -> SceneState:
+        return SceneState(
+            self.positions.copy(),
+            self.orientations.copy(),
+            self.velocities.copy(),
+            self.angular_velocities.copy(),
+            self.masses.copy(),
+            self.time,
+        )
+
+    def set_state(
+        self, positions=None, orientations=None, velocities=None, angular_velocities=None
+    ) -> None:
+        """Overwrite any of the state arrays (validated in full before anything changes;
+        quaternions with a norm within 1e-6 of 1 are renormalised). Fixed bodies keep
+        zero velocities."""
+        n = len(self)
+        new = {}
+        for name, value, width in (
+            ("positions", positions, 3),
+            ("orientations", orientations, 4),
+            ("velocities", velocities, 3),
+            ("angular_velocities", angular_velocities, 3),
+        ):
+            if value is not None:
+                new[name] = _rows(value, n, width, name)
+        if "orientations" in new:
+            norms = np.linalg.norm(new["orientations"], axis=1)
+            bad = np.flatnonzero(np.abs(norms - 1) > 1e-6)
+            if len(bad):
+                raise InvalidArgumentError(
+                    f"orientations[{bad[0]}] is not a unit quaternion (norm {norms[bad[0]]:.6g})"
+                )
+            new["orientations"] = new["orientations"] / norms[:, None]
+        for name in ("velocities", "angular_velocities"):
+            if name in new:
+                new[name][self.fixed] = 0.0
+        for name, value in new.items():
+            setattr(self, name, value)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, dt: float, scheme: str | None = None):
+        """Advance by ``dt`` with ``scheme`` (default: the scene's); returns the step's
+        :class:`~engine.picard.StepStats`."""
+        from .picard import step
+
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt > 0):
+            raise InvalidArgumentError(f"dt must be finite and > 0, got {dt}")
+        return step(self, dt, _scheme(scheme or self.scheme))
+
+    def kinetic_energy(self) -> float:
+        """Translational plus rotational kinetic energy of the free bodies."""
+        free = ~self.fixed
+        v, w = self.velocities[free], self.angular_velocities[free]
+        rot = np.empty((len(self), 3, 3))
+        kd.rotation_matrices(self.orientations, rot)
+        world = rot[free] @ self.inertia[free] @ rot[free].transpose(0, 2, 1)
+        spin = np.einsum("bi,bij,bj->", w, world, w)
+        return float(0.5 * (self.masses[free] * (v * v).sum(1)).sum() + 0.5 * spin)
+
+    def momentum(self) -> tuple[np.ndarray, np.ndarray]:
+        """Total linear momentum and angular momentum about the origin of the free bodies."""
+        free = ~self.fixed
+        m, x, v = self.masses[free], self.positions[free], self.velocities[free]
+        rot = np.empty((len(self), 3, 3))
+        kd.rotation_matrices(self.orientations, rot)
+        world = rot[free] @ self.inertia[free] @ rot[free].transpose(0, 2, 1)
+        linear = (m[:, None] * v).sum(0)
+        angular = np.cross(x, m[:, None] * v).sum(0) + np.einsum(
+            "bij,bj->i", world, self.angular_velocities[free]
+        )
+        return linear, angular
+
+    # ------------------------------------------------------------------ contacts
+    def contacts(self, positions, orientations, hierarchy: bool = True) -> Contacts:
+        """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``."""
+        rot = np.empty((len(self), 3, 3))
+        kd.rotation_matrices(orientations, rot)
+        origins = positions - np.einsum("bij,bj->bi", rot, self.centers)  # mesh frames
+        roots = np.array([spheres(t)[0] for t in self.trees])[self.tree_index]
+        centres = origins + np.einsum("bij,bj->bi", rot, roots[:, :3])
+        pairs = candidate_pairs(centres, roots[:, 3], self.fixed)
+        counters = dict.fromkeys(
+            ("comparisons", "iterative", "fallbacks", "sphere_pruned", "unfoldings"), 0
+        )
+        if hierarchy:
+            batch = self.bank.find_contacts(
+                self.tree_index[pairs[:, 0]],
+                origins[pairs[:, 0]],
+                orientations[pairs[:, 0]],
+                self.tree_index[pairs[:, 1]],
+                origins[pairs[:, 1]],
+                orientations[pairs[:, 1]],
+                kernel=self.kernel,
+                threads=self.threads,
+            )
+            from .kernels import batch as kb
+
+            for name, column in (
+                ("comparisons", kb.COUNT_COMPARISONS),
+                ("iterative", kb.COUNT_ITERATIVE),
+                ("fallbacks", kb.COUNT_FALLBACKS),
+                ("sphere_pruned", kb.COUNT_SPHERES),
+                ("unfoldings", kb.COUNT_UNFOLDINGS),
+            ):
+                counters[name] = int(batch.counts[:, column].sum())
+            counters["triangle_pairs"] = len(batch.pairs)
+            return Contacts(
+                pairs, batch.contact_offsets, batch.points, batch.normals, batch.overlaps, counters
+            )
+        offsets, points, normals, overlaps, triangle_pairs = [0], [], [], [], 0
+        for a, b in pairs:
+            res = find_contacts(
+                self.trees[self.tree_index[a]],
+                Pose(origins[a], orientations[a]),
+                self.trees[self.tree_index[b]],
+                Pose(origins[b], orientations[b]),
+                kernel=self.kernel,
+                hierarchy=False,
+                precision=self.precision,
+            )
+            offsets.append(offsets[-1] + len(res.points))
+            points.append(res.points), normals.append(res.normals), overlaps.append(res.overlaps)
+            counters["comparisons"] += res.stats.comparisons
+            counters["iterative"] += res.stats.iterative
+            counters["fallbacks"] += res.stats.fallbacks
+            triangle_pairs += len(res.pairs)
+        counters["triangle_pairs"] = triangle_pairs
+        return Contacts(
+            pairs,
+            np.array(offsets, np.int64),
+            np.concatenate(points) if points else np.zeros((0, 3)),
+            np.concatenate(normals) if normals else np.zeros((0, 3)),
+            np.concatenate(overlaps) if overlaps else np.zeros(0),
+            counters,
+        )
+
+    @property
+    def bank(self) -> TreeBank:
+        if self._bank is None:
+            self._bank = TreeBank(self.trees, self.precision)
+        return self._bank
+
+    @property
+    def epsilon(self) -> np.ndarray:
+        """(n,) ε of each body (its tree's leaf ε)."""
+        return np.array([t.leaf_epsilon for t in self.trees])[self.tree_index]
+
+    # ------------------------------------------------------------------ helpers
+    def _tree(self, body, epsilon) -> tuple[SurrogateTree, Mesh]:
+        if isinstance(body, SurrogateTree):
+            if epsilon is not None and epsilon != body.leaf_epsilon:
+                raise InvalidArgumentError("a SurrogateTree keeps its own ε; omit epsilon")
+            key = ("tree", id(body))
+            if key not in self._tree_keys:
+                self._tree_keys[key] = len(self.trees)
+                self.trees.append(body)
+                self._bank = None
+            return body, _tree_mesh(body)
+        if not isinstance(body, Mesh):
+            raise InvalidArgumentError("body must be an engine.Mesh or an engine.SurrogateTree")
+        if epsilon is None:
+            spread = body.vertices - body.vertices.mean(axis=0)
+            eps = DEFAULT_RELATIVE_EPSILON * 2 * float(np.sqrt((spread**2).sum(1).max()))
+        else:
+            eps = float(epsilon)
+            if not (math.isfinite(eps) and eps > 0):
+                raise InvalidArgumentError(f"epsilon must be finite and > 0, got {epsilon!r}")
+        key = ("mesh", id(body), eps)
+        if key not in self._tree_keys:
+            self._tree_keys[key] = len(self.trees)
+            tree = build_tree(body, eps)
+            tree.__dict__["_mesh"] = body
+            self.trees.append(tree)
+            self._bank = None
+        return self.trees[self._tree_keys[key]], body
+
+    def _append(self, **row) -> None:
+        self.positions = np.vstack([self.positions, row["position"]])
+        self.orientations = np.vstack([self.orientations, row["orientation"]])
+        self.velocities = np.vstack([self.velocities, row["velocity"]])
+        self.angular_velocities = np.vstack([self.angular_velocities, row["angular_velocity"]])
+        self.masses = np.append(self.masses, row["mass"])
+        self.inertia = np.concatenate([self.inertia, row["inertia"][None]])
+        self.inverse_inertia = np.concatenate([self.inverse_inertia, row["inverse_inertia"][None]])
+        self.centers = np.vstack([self.centers, row["center"]])
+        self.tree_index = np.append(self.tree_index, self.trees.index(row["tree"]))
+        self.fixed = np.append(self.fixed, row["fixed"])
+        self.external_forces = np.vstack([self.external_forces, np.zeros(3)])
+
+    def _body(self, body: int) -> int:
+        if isinstance(body, bool) or not isinstance(body, int | np.integer):
+            raise InvalidArgumentError(f"body must be an index, got {body!r}")
+        if not 0 <= body < len(self):
+            raise InvalidArgumentError(f"no body {body} (the scene has {len(self)})")
+        return int(body)
+
+
+def _tree_mesh(tree: SurrogateTree) -> Mesh:
+    """The mesh of a tree's leaves (for mass properties), cached on the tree."""
+    if "_mesh" not in tree.__dict__:
+        leaves = tree.face >= 0
+        order = np.argsort(tree.face[leaves])
+        tris = tree.triangles[leaves][order].reshape(-1, 3)
+        vertices, faces = np.unique(tris, axis=0, return_inverse=True)
+        tree.__dict__["_mesh"] = Mesh(vertices, faces.reshape(-1, 3))
+    return tree.__dict__["_mesh"]
+
+
+def _density(density, mass, volume: float) -> float:
+    if mass is not None:
+        mass = float(mass)
+        if not (math.isfinite(mass) and mass > 0):
+            raise InvalidArgumentError(f"mass must be finite and > 0, got {mass}")
+        return mass / volume
+    density = 1.0 if density is None else float(density)
+    if not (math.isfinite(density) and density > 0):
+        raise InvalidArgumentError(f"density must be finite and > 0, got {density}")
+    return density
+
+
+def _scheme(scheme: str) -> str:
+    if scheme not in SCHEMES:
+        raise InvalidArgumentError(f"scheme must be one of {', '.join(SCHEMES)}; got {scheme!r}")
+    return scheme
+
+
+def _vector(value, n: int, name: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(f"{name} must be {n} numbers, got {value!r}") from None
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise InvalidArgumentError(f"{name} must be {n} finite numbers, got {value!r}")
+    return arr
+
+
+def _rows(value, n: int, width: int, name: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(f"{name} must be an ({n}, {width}) array") from None
+    if arr.shape != (n, width) or not np.isfinite(arr).all():
+        raise InvalidArgumentError(f"{name} must be an ({n}, {width}) array of finite numbers")
+    return arr
