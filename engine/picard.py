@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .kernels import dynamics as kd
+from .multiscale import MultiscaleSearch
 
 __all__ = ["StepStats", "step"]
 
@@ -51,6 +52,7 @@ class StepStats:
     triangle_pairs : int — finest-level triangle pairs in contact, last evaluation
     comparisons, iterative, fallbacks, sphere_pruned, unfoldings : int — search counters
         summed over all evaluations
+    folds : int — multiscale: sibling groups folded back into their parent
     max_overlap : float — largest overlap / (ε_a + ε_b) at the end of the step
     elastic_energy : float — energy stored in the contact springs, last evaluation
     halvings : int — how many times the step was split because Picard did not converge
@@ -69,6 +71,7 @@ class StepStats:
     fallbacks: int
     sphere_pruned: int
     unfoldings: int
+    folds: int
     max_overlap: float
     elastic_energy: float
     halvings: int
@@ -82,8 +85,10 @@ def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> Ste
     state = _state(scene)
     if scheme == "explicit":
         stats = _explicit(scene, dt)
+    elif scheme == "multiscale":
+        stats = _picard(scene, dt, MultiscaleSearch(scene))
     else:
-        stats = _picard(scene, dt, hierarchy=scheme == "implicit-surrogate")
+        stats = _picard(scene, dt, _Search(scene, hierarchy=scheme == "implicit-surrogate"))
     if not stats["converged"] and left > 0:
         _restore(scene, state)
         first = step(scene, dt / 2, scheme, left - 1)
@@ -93,9 +98,20 @@ def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> Ste
     return StepStats(scheme=scheme, dt=dt, halvings=0, seconds=time.perf_counter() - start, **stats)
 
 
+class _Search:
+    """A fresh search of every configuration (flat or multiresolution); never changes."""
+
+    def __init__(self, scene, hierarchy: bool) -> None:
+        self.scene, self.hierarchy = scene, hierarchy
+
+    def __call__(self, positions, orientations):
+        return self.scene.contacts(positions, orientations, self.hierarchy), None, False
+
+
 def _explicit(scene, dt: float) -> dict:
     x, q, v, w = _state(scene)
-    normal, friction, _, contacts, energy = _forces(scene, (x, q, v, w), x, hierarchy=True)
+    search = _Search(scene, hierarchy=True)
+    normal, friction, _, contacts, energy, _ = _forces(scene, (x, q, v, w), x, search)
     out = tuple(np.empty_like(a) for a in (x, q, v, w))
     force, torque = normal[0] + friction[0], normal[1] + friction[1]
     _advance(scene, (x, q, v, w), force, torque, dt, out)
@@ -103,7 +119,7 @@ def _explicit(scene, dt: float) -> dict:
     return _summary(scene, contacts, [contacts.counters], energy, True, 1)
 
 
-def _picard(scene, dt: float, hierarchy: bool) -> dict:
+def _picard(scene, dt: float, search) -> dict:
     start = _state(scene)
     guess = tuple(a.copy() for a in start)
     radius = _radii(scene)
@@ -111,22 +127,25 @@ def _picard(scene, dt: float, hierarchy: bool) -> dict:
     counters, converged, iterations = [], False, 0
     while iterations < scene.max_picard_iterations:
         iterations += 1
-        normal, friction, stiffness, contacts, energy = _forces(scene, guess, start[0], hierarchy)
+        normal, friction, stiffness, contacts, energy, changed = _forces(
+            scene, guess, start[0], search
+        )
         computed = (normal, friction)
         counters.append(contacts.counters)
         if applied is None:  # the forces of the step's start, then the first relaxation
-            applied = [
-                (normal[0].copy(), normal[1].copy()),
-                (friction[0].copy(), friction[1].copy()),
-            ]
+            applied = [(f.copy(), t.copy()) for f, t in computed]
             beta = _first_weights(scene, stiffness, radius, dt)
         else:
             total = (normal[0] + friction[0], normal[1] + friction[1])
             change = [(c[0] - a[0], c[1] - a[1]) for c, a in zip(computed, applied, strict=True)]
             mismatch = (change[0][0] + change[1][0], change[0][1] + change[1][1])
-            converged = _settled(scene, total, mismatch, radius, scene.picard_tolerance)
+            settled = _settled(scene, total, mismatch, radius, scene.picard_tolerance)
+            converged = settled and not changed  # multiscale: nothing unfolded either
             if converged:
                 break
+            if changed:  # a front moved: the secant history no longer describes the map
+                residual = [None, None]
+                beta = _first_weights(scene, stiffness, radius, dt)
             for part in range(2):  # normal and friction forces, each with its own weight
                 new = np.concatenate(
                     [change[part][0].ravel(), (change[part][1] / radius[:, None]).ravel()]
@@ -175,30 +194,37 @@ def _radii(scene) -> np.ndarray:
     return np.array([max(t.bounding_radius, 1e-12) for t in scene.trees])[scene.tree_index]
 
 
-def _forces(scene, configuration, origins, hierarchy: bool):
+def _forces(scene, configuration, origins, search):
     """Normal (with gravity and external) and friction forces and torques ``(n, 3)`` of a
-    configuration, the per-body contact stiffness sums, the contacts and the elastic energy."""
+    configuration, the per-body contact stiffness sums, the leaf contacts, the elastic
+    energy and whether the search's fronts changed. Surrogate contacts (multiscale) add
+    normal forces only."""
     x, q, v, w = configuration
-    contacts = scene.contacts(x, q, hierarchy=hierarchy)
+    contacts, surrogate, changed = search(x, q)
     free = ~scene.fixed
     force = np.zeros_like(x)
     force[free] = scene.masses[free, None] * scene.gravity + scene.external_forces[free]
     torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
     stiffness = np.zeros((len(x), 2))
-    energy = kd.contact_forces(
-        contacts.bodies,
-        contacts.offsets,
-        contacts.points,
-        contacts.normals,
-        contacts.overlaps,
-        (x, v, w, origins),
-        (scene.masses, scene.epsilon),
-        scene.contact_model.parameters(),
-        (force, torque, friction_force, friction_torque, stiffness),
-    )
+    out = (force, torque, friction_force, friction_torque, stiffness)
+    law = scene.contact_model.parameters()
+    energy = 0.0
+    for found, parameters in ((contacts, law), (surrogate, (*law[:3], 0.0, law[4]))):
+        if found is not None and len(found.points):
+            energy += kd.contact_forces(
+                found.bodies,
+                found.offsets,
+                found.points,
+                found.normals,
+                found.overlaps,
+                (x, v, w, origins),
+                (scene.masses, scene.epsilon),
+                parameters,
+                out,
+            )
     for array in (force, torque, friction_force, friction_torque):
         array[~free] = 0.0
-    return (force, torque), (friction_force, friction_torque), stiffness, contacts, energy
+    return (force, torque), (friction_force, friction_torque), stiffness, contacts, energy, changed
 
 
 def _settled(scene, computed, mismatch, radius, tolerance: float) -> bool:
@@ -256,6 +282,7 @@ def _merged(first: StepStats, second: StepStats, dt: float, seconds: float) -> S
         contacts=second.contacts,
         triangle_pairs=second.triangle_pairs,
         unfoldings=first.unfoldings + second.unfoldings,
+        folds=first.folds + second.folds,
         max_overlap=max(first.max_overlap, second.max_overlap),
         elastic_energy=second.elastic_energy,
         halvings=1 + first.halvings + second.halvings,

@@ -35,7 +35,7 @@ from .tree import SurrogateTree, build_tree
 
 __all__ = ["SCHEMES", "Scene", "SceneState"]
 
-SCHEMES = ("explicit", "implicit", "implicit-surrogate")
+SCHEMES = ("explicit", "implicit", "implicit-surrogate", "multiscale")
 DEFAULT_RELATIVE_EPSILON = 0.01
 """A body's ε when not given: this fraction of its mesh's diameter (DESIGN §5), taken as
 twice the largest distance of a vertex from the vertices' mean (rotation invariant; 1 for
@@ -319,16 +319,21 @@ class Scene:
         return linear, angular
 
     # ------------------------------------------------------------------ contacts
-    def contacts(self, positions, orientations, hierarchy: bool = True) -> Contacts:
-        """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``."""
+    def configuration(self, positions, orientations) -> tuple[np.ndarray, np.ndarray]:
+        """Mesh-frame origins ``(n, 3)`` of the bodies at ``positions (n, 3)``,
+        ``orientations (n, 4)``, and the broad phase's candidate pairs ``(k, 2)``."""
         rot = np.empty((len(self), 3, 3))
         kd.rotation_matrices(orientations, rot)
-        origins = positions - np.einsum("bij,bj->bi", rot, self.centers)  # mesh frames
+        origins = positions - np.einsum("bij,bj->bi", rot, self.centers)
         roots = np.array([spheres(t)[0] for t in self.trees])[self.tree_index]
         centres = origins + np.einsum("bij,bj->bi", rot, roots[:, :3])
-        pairs = candidate_pairs(centres, roots[:, 3], self.fixed)
+        return origins, candidate_pairs(centres, roots[:, 3], self.fixed)
+
+    def contacts(self, positions, orientations, hierarchy: bool = True) -> Contacts:
+        """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``."""
+        origins, pairs = self.configuration(positions, orientations)
         counters = dict.fromkeys(
-            ("comparisons", "iterative", "fallbacks", "sphere_pruned", "unfoldings"), 0
+            ("comparisons", "iterative", "fallbacks", "sphere_pruned", "unfoldings", "folds"), 0
         )
         if hierarchy:
             batch = self.bank.find_contacts(

@@ -1,0 +1,291 @@
+"""Multiscale Picard (paper §5.3, Algorithm 6): fronts kept across Picard iterations.
+
+For every body pair a **front** of node pairs lives through the Picard iterations of
+one step: a complete cut of the pair's tree product (every leaf pair lies under exactly
+one entry), starting at the two roots. Each iteration evaluates every entry at the
+guessed configuration, then
+
+* **widens**: an entry with a surrogate whose iterative result is "contact" or "not
+  converged" is replaced by its child pairs (both surrogates unfold, a leaf stays) —
+  one level per iteration (the paper: "one Picard iteration per unfolding step");
+* **narrows**: a complete group of siblings that are all certainly apart folds back to
+  its parent ("if all children … do certainly not contribute … they are replaced with
+  their parent"), unless that parent was folded before in this step and came back: the
+  **veto memory** then forbids folding it again, so the front cannot cycle.
+
+Forces: leaf entries give the exact contacts (merged as in a single query); a surrogate
+entry in contact gives a **damped surrogate force** (the paper: "we artificially reduce
+the force contributions from coarse surrogate levels"): the law is applied to the
+overlap scaled by ρ² — δ_eq = δ_s·ρ², ρ = (ε_a + ε_b)/(ε_i + ε_j) the ratio of the leaf
+to the surrogate halos — so that, for the paper's law, F = K_s·φ_s·ρ·√m_red with φ_s the
+surrogate pair's own overlap fraction; surrogate contacts carry no friction. A step
+converges only when the Picard residual is small **and** nothing unfolded in the last
+iteration; then every surrogate entry is certainly apart and the forces are exactly the
+leaf contacts of the accepted configuration.
+
+Design and rules from the paper (line references and choices): docs/dynamics.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .contacts import (
+    TINY,
+    ULP,
+    _face_normals,
+    _moved,
+    _node_set,
+    _structure,
+    extent,
+    spheres,
+)
+from .distance import TriangleSet, triangle_contacts
+from .kernels.batch import query_margin, relative_pose
+from .kernels.contact_merge import contact_kernel
+from .kernels.rigid import margin_kernel
+
+__all__ = ["MultiscaleSearch"]
+
+
+class _Front:
+    """The front of one body pair: entries (node pairs) with their parents."""
+
+    def __init__(self) -> None:
+        self.nodes = np.zeros((1, 2), np.int64)
+        self.parents = np.full((1, 2), -1, np.int64)
+        self.quiet = np.zeros(1, bool)  # certainly apart at the last evaluation
+        self.up: dict[tuple[int, int], tuple[int, int]] = {}
+        self.folded: set[tuple[int, int]] = set()
+        self.veto: set[tuple[int, int]] = set()
+
+
+class MultiscaleSearch:
+    """Contacts of a scene's configurations with per-pair fronts kept between calls (one
+    Picard step). Calling it returns ``(leaf contacts, surrogate contacts, changed)``."""
+
+    def __init__(self, scene) -> None:
+        self.scene = scene
+        self.fronts: dict[tuple[int, int], _Front] = {}
+
+    def __call__(self, positions, orientations):
+        from .scene import Contacts
+
+        scene = self.scene
+        origins, pairs = scene.configuration(positions, orientations)
+        counters = dict.fromkeys(
+            ("comparisons", "iterative", "fallbacks", "sphere_pruned", "unfoldings", "folds"), 0
+        )
+        leaf_rows, surrogate_rows = [], []
+        triangle_pairs, changed = 0, False
+        for a, b in pairs.tolist():
+            front = self.fronts.setdefault((a, b), _Front())
+            leaf, surrogate, unfolded, folded, count = self._evaluate(
+                front, a, b, origins, orientations, counters
+            )
+            leaf_rows.append(leaf), surrogate_rows.append(surrogate)
+            triangle_pairs += count
+            changed |= unfolded > 0
+            counters["unfoldings"] += unfolded
+            counters["folds"] += folded
+        counters["triangle_pairs"] = triangle_pairs
+        return (
+            _stack(Contacts, pairs, leaf_rows, counters),
+            _stack(Contacts, pairs, surrogate_rows, dict(counters)),
+            changed,
+        )
+
+    def _evaluate(self, front, a, b, origins, orientations, counters):
+        scene = self.scene
+        ta, tb = scene.trees[scene.tree_index[a]], scene.trees[scene.tree_index[b]]
+        dtype = np.dtype(scene.precision).type
+        rot_a, rotation, shift = relative_pose(
+            origins[a], orientations[a], origins[b], orientations[b]
+        )
+        margin = query_margin(extent(ta), extent(tb), shift, ULP[dtype])
+        nodes = front.nodes
+        # bounding spheres first (B's centres moved into A's frame)
+        sa, sb = spheres(ta), spheres(tb)
+        centre_b = sb[nodes[:, 1], :3] @ rotation.T + shift
+        gap = np.linalg.norm(sa[nodes[:, 0], :3] - centre_b, axis=1)
+        apart = gap > sa[nodes[:, 0], 3] + sb[nodes[:, 1], 3] + margin
+        counters["sphere_pruned"] += int(apart.sum())
+        face_a, face_b = _structure(ta)[1], _structure(tb)[1]
+        is_leaf = (face_a[nodes[:, 0]] >= 0) & (face_b[nodes[:, 1]] >= 0)
+        coords, frames = _moved(tb, (rotation, shift), np.unique(nodes[:, 1]), dtype)
+        set_a = _node_set(ta, scene.precision, False)
+        set_b = TriangleSet.prepared(coords.T, frames.T)
+        eps_a, eps_b = np.empty(len(ta), dtype), np.empty(len(tb), dtype)
+        margin_kernel(*_structure(ta)[:2], margin, eps_a)
+        margin_kernel(*_structure(tb)[:2], margin, eps_b)
+        status = np.zeros(len(nodes), np.int8)  # 0: certainly apart
+        setup = (
+            ta.leaf_epsilon,
+            tb.leaf_epsilon,
+            TINY * max(ta.bounding_radius, tb.bounding_radius),
+            min(ta.leaf_epsilon, tb.leaf_epsilon),
+            rot_a,
+            origins[a].copy(),
+        )
+        leaf, surrogate = _empty(), _empty()
+        count = 0
+        for mask, kernel, leaves in (
+            (is_leaf, scene.kernel, True),
+            (~is_leaf, _surrogate_kernel(scene), False),
+        ):
+            listed = np.flatnonzero(mask & ~apart)
+            if not len(listed):
+                continue
+            res = triangle_contacts(
+                set_a,
+                set_b,
+                eps_a,
+                eps_b,
+                pairs=nodes[listed],
+                kernel=kernel,
+                precision=scene.precision,
+                threads=1,
+            )
+            counters["comparisons"] += res.stats.pairs
+            counters["iterative"] += res.stats.iterative
+            counters["fallbacks"] += res.stats.fallbacks
+            found_rows = listed[_rows_of(nodes[listed], res.pairs)]
+            status[found_rows] = res.status
+            if leaves:
+                out = (
+                    np.empty((len(res), 2), np.int64),
+                    np.empty((len(res), 3)),
+                    np.empty((len(res), 3)),
+                    np.empty(len(res)),
+                )
+                found = (
+                    np.ascontiguousarray(res.pairs[:, 0]),
+                    np.ascontiguousarray(res.pairs[:, 1]),
+                    res.distance,
+                    np.ascontiguousarray(res.point_a.T),
+                    np.ascontiguousarray(res.point_b.T),
+                    res.status,
+                )
+                m, k = contact_kernel(
+                    found,
+                    len(res),
+                    face_a,
+                    face_b,
+                    len(_face_normals(tb)),
+                    kernel != "iterative",
+                    _face_normals(ta),
+                    setup,
+                    out,
+                )
+                leaf = (out[1][:k], out[2][:k], out[3][:k])
+                count = m
+            else:
+                hit = res.status == 1
+                surrogate = _surrogate_contacts(
+                    ta, tb, res, hit, rot_a, origins[a], scene.centers[a]
+                )
+        front.quiet = status == 0
+        unfolded = self._widen(front, ta, tb, status, is_leaf)
+        folded = self._narrow(front, ta, tb)
+        return leaf, surrogate, unfolded, folded, count
+
+    def _widen(self, front, ta, tb, status, is_leaf) -> int:
+        """Replace surrogate entries in contact or not converged by their child pairs."""
+        grow = np.flatnonzero((status > 0) & ~is_leaf)
+        if not len(grow):
+            return 0
+        keep = np.ones(len(front.nodes), bool)
+        keep[grow] = False
+        nodes, parents, quiet = [front.nodes[keep]], [front.parents[keep]], [front.quiet[keep]]
+        for r in grow:
+            i, j = (int(x) for x in front.nodes[r])
+            key = (i, j)
+            front.up[key] = tuple(int(x) for x in front.parents[r])
+            if key in front.folded:
+                front.veto.add(key)  # re-added after a fold: never fold again this step
+            kids = np.array([[ci, cj] for ci in _children(ta, i) for cj in _children(tb, j)])
+            nodes.append(kids)
+            parents.append(np.tile([i, j], (len(kids), 1)))
+            quiet.append(np.zeros(len(kids), bool))  # not evaluated yet
+        front.nodes, front.parents = np.concatenate(nodes), np.concatenate(parents)
+        front.quiet = np.concatenate(quiet)
+        return len(grow)
+
+    def _narrow(self, front, ta, tb) -> int:
+        """Fold complete sibling groups, all certainly apart at this evaluation, into their
+        parent — unless the parent is vetoed (it came back after an earlier fold)."""
+        parents = front.parents
+        inner = np.flatnonzero(parents[:, 0] >= 0)
+        if not len(inner):
+            return 0
+        groups: dict[tuple[int, int], list[int]] = {}
+        for r in inner.tolist():
+            groups.setdefault((int(parents[r, 0]), int(parents[r, 1])), []).append(r)
+        drop, add = [], []
+        for key, rows in groups.items():
+            size = len(_children(ta, key[0])) * len(_children(tb, key[1]))
+            if key in front.veto or len(rows) != size or not front.quiet[rows].all():
+                continue
+            drop.extend(rows)
+            add.append((key, front.up.get(key, (-1, -1))))
+            front.folded.add(key)
+        if not add:
+            return 0
+        keep = np.ones(len(front.nodes), bool)
+        keep[drop] = False
+        front.nodes = np.concatenate([front.nodes[keep], np.array([k for k, _ in add])])
+        front.parents = np.concatenate([front.parents[keep], np.array([u for _, u in add])])
+        front.quiet = np.concatenate([front.quiet[keep], np.zeros(len(add), bool)])
+        return len(add)
+
+
+def _children(tree, node: int) -> list[int]:
+    face = tree.face[node]
+    if face >= 0:
+        return [node]
+    start = int(tree.first_child[node])
+    return list(range(start, start + int(tree.child_count[node])))
+
+
+def _rows_of(nodes: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """Row of each ``found`` pair within ``nodes`` (pairs of non-negative ints)."""
+    scale = int(max(nodes.max(initial=0), found.max(initial=0))) + 1
+    keys = nodes[:, 0] * scale + nodes[:, 1]
+    order = np.argsort(keys)
+    return order[np.searchsorted(keys[order], found[:, 0] * scale + found[:, 1])]
+
+
+def _surrogate_kernel(scene) -> str:
+    return "exact" if scene.kernel == "exact" else "iterative"
+
+
+def _surrogate_contacts(ta, tb, res, hit, rot_a, origin_a, center_a):
+    """Damped contacts of surrogate pairs in contact (world frame); where the two closest
+    points coincide the normal points away from A's centre of mass (``center_a``, mesh
+    frame)."""
+    if not hit.any():
+        return _empty()
+    i, j = res.pairs[hit, 0], res.pairs[hit, 1]
+    ei, ej = ta.epsilon[i], tb.epsilon[j]
+    p, q = res.point_a[hit].astype(float), res.point_b[hit].astype(float)
+    gap = q - p
+    length = np.linalg.norm(gap, axis=1)
+    point = p + (ei / (ei + ej))[:, None] * gap
+    direction = np.where((length > 0)[:, None], gap, point - center_a)
+    normal = direction / np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
+    rho = (ta.leaf_epsilon + tb.leaf_epsilon) / (ei + ej)
+    overlap = np.clip(ei + ej - res.distance[hit], 0.0, None) * rho**2
+    return point @ rot_a.T + origin_a, normal @ rot_a.T, overlap
+
+
+def _empty():
+    return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+
+
+def _stack(cls, pairs, rows, counters):
+    offsets = np.concatenate([[0], np.cumsum([len(r[2]) for r in rows])]).astype(np.int64)
+
+    def cat(k):
+        return np.concatenate([r[k] for r in rows]) if rows else _empty()[k]
+
+    return cls(pairs, offsets, cat(0), cat(1), cat(2), counters)
