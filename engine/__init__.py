@@ -3,7 +3,7 @@
 Never imports ``service`` or ``clients``.
 """
 
-from . import shapes
+from . import scenarios, shapes
 from .batch import ContactBatch, TreeBank, find_contacts_batch
 from .broadphase import candidate_pairs
 from .contacts import ContactSet, ContactStats, find_contacts
@@ -61,5 +61,6 @@ __all__ = [
     "SurrogateTree",
     "build_tree",
     "load_mesh",
+    "scenarios",
     "shapes",
 ]

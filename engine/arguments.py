@@ -20,7 +20,10 @@ __all__ = [
     "check_kernel",
     "check_pairs",
     "check_precision",
+    "check_quaternions",
+    "check_rows",
     "check_triangles",
+    "check_vector",
     "coordinate_limit",
     "kernel_constants",
 ]
@@ -142,3 +145,39 @@ def check_pairs(pairs, na: int, nb: int) -> np.ndarray:
             f"indices from {lo} up to {hi_a} (into a) and {hi_b} (into b)"
         )
     return arr
+
+
+def check_vector(value, n: int, name: str) -> np.ndarray:
+    """A new ``(n,)`` float64 array of finite numbers."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(f"{name} must be {n} numbers, got {value!r}") from None
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise InvalidArgumentError(f"{name} must be {n} finite numbers, got {value!r}")
+    return arr
+
+
+def check_rows(values, k: int, width: int, name: str) -> np.ndarray:
+    """A new ``(k, width)`` float64 array of finite numbers."""
+    try:
+        arr = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(f"{name} must be a ({k}, {width}) array of numbers") from None
+    if arr.shape != (k, width) or not np.isfinite(arr).all():
+        raise InvalidArgumentError(f"{name} must be a ({k}, {width}) array of finite numbers")
+    return arr
+
+
+def check_quaternions(values, k: int, name: str) -> np.ndarray:
+    """``(k, 4)`` unit quaternions (w, x, y, z): norms within 1e-6 of 1 are renormalised,
+    anything else is an error."""
+    arr = check_rows(values, k, 4, name)
+    norms = np.linalg.norm(arr, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-6)
+    if len(bad):
+        raise InvalidArgumentError(
+            f"{name}[{bad[0]}] must be a unit quaternion (w, x, y, z); its norm is "
+            f"{norms[bad[0]]:.6g}"
+        )
+    return arr / norms[:, None]

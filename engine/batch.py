@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .arguments import check_kernel, check_precision
+from .arguments import check_kernel, check_precision, check_quaternions, check_rows
 from .contacts import (
     TINY,
     ULP,
@@ -180,10 +180,10 @@ class TreeBank:
         queries = (
             _indices(tree_a, k, len(self), "tree_a"),
             _indices(tree_b, k, len(self), "tree_b"),
-            _rows(position_a, k, 3, "position_a"),
-            _quaternions(orientation_a, k, "orientation_a"),
-            _rows(position_b, k, 3, "position_b"),
-            _quaternions(orientation_b, k, "orientation_b"),
+            check_rows(position_a, k, 3, "position_a"),
+            check_quaternions(orientation_a, k, "orientation_a"),
+            check_rows(position_b, k, 3, "position_b"),
+            check_quaternions(orientation_b, k, "orientation_b"),
         )
         return self._run(queries, kernel, threads)
 
@@ -303,25 +303,3 @@ def _indices(values, k: int, n: int, name: str) -> np.ndarray:
     if k and (arr.min() < 0 or arr.max() >= n):
         raise InvalidArgumentError(f"{name} refers to a tree outside the bank (0 … {n - 1})")
     return np.ascontiguousarray(arr, dtype=np.int64)
-
-
-def _rows(values, k: int, width: int, name: str) -> np.ndarray:
-    try:
-        arr = np.array(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidArgumentError(f"{name} must be a ({k}, {width}) array of numbers") from None
-    if arr.shape != (k, width) or not np.isfinite(arr).all():
-        raise InvalidArgumentError(f"{name} must be a ({k}, {width}) array of finite numbers")
-    return arr
-
-
-def _quaternions(values, k: int, name: str) -> np.ndarray:
-    arr = _rows(values, k, 4, name)
-    norms = np.linalg.norm(arr, axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-6)
-    if len(bad):
-        raise InvalidArgumentError(
-            f"{name}[{bad[0]}] must be a unit quaternion (w, x, y, z); its norm is "
-            f"{norms[bad[0]]:.6g}"
-        )
-    return arr / norms[:, None]

@@ -21,7 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .arguments import check_kernel, check_precision
+from .arguments import (
+    check_kernel,
+    check_precision,
+    check_quaternions,
+    check_rows,
+    check_vector,
+)
 from .batch import TreeBank
 from .broadphase import candidate_pairs
 from .contacts import find_contacts, spheres
@@ -109,7 +115,7 @@ class Scene:
         max_halvings: int = 0,
         threads: int | None = None,
     ) -> None:
-        self.gravity = _vector(gravity, 3, "gravity")
+        self.gravity = check_vector(gravity, 3, "gravity")
         model = PaperSpring() if contact_model is None else contact_model
         if not isinstance(model, ContactModel):
             raise InvalidArgumentError("contact_model must be an engine.ContactModel")
@@ -177,18 +183,64 @@ class Scene:
         fixed : bool — immovable (infinite mass)
         """
         pose = Pose(position, orientation)  # validates both
-        velocity = _vector(velocity, 3, "velocity")
-        angular_velocity = _vector(angular_velocity, 3, "angular_velocity")
+        rows = (
+            pose.position[None],
+            pose.orientation[None],
+            check_vector(velocity, 3, "velocity")[None],
+            check_vector(angular_velocity, 3, "angular_velocity")[None],
+        )
+        return self._add(body, rows, density, mass, fixed, epsilon)[0]
+
+    def add_bodies(
+        self,
+        body: Mesh | SurrogateTree,
+        positions,
+        orientations=None,
+        velocities=None,
+        angular_velocities=None,
+        density: float | None = None,
+        mass: float | None = None,
+        fixed: bool = False,
+        epsilon: float | None = None,
+    ) -> np.ndarray:
+        """Add ``k`` bodies of one shape at once (``positions (k, 3)``; orientations
+        ``(k, 4)``, velocities and angular velocities ``(k, 3)`` default to identity and
+        rest); otherwise as :meth:`add_body`. Returns their indices ``(k,)``."""
+        positions = np.array(positions, dtype=np.float64, copy=True)
+        if positions.ndim != 2:
+            raise InvalidArgumentError("positions must be a (k, 3) array")
+        k = len(positions)
+        positions = check_rows(positions, k, 3, "positions")
+        orientations = (
+            np.tile([1.0, 0.0, 0.0, 0.0], (k, 1))
+            if orientations is None
+            else check_quaternions(orientations, k, "orientations")
+        )
+        zeros = np.zeros((k, 3))
+        rows = (
+            positions,
+            orientations,
+            zeros if velocities is None else check_rows(velocities, k, 3, "velocities"),
+            zeros
+            if angular_velocities is None
+            else check_rows(angular_velocities, k, 3, "angular_velocities"),
+        )
+        return self._add(body, rows, density, mass, fixed, epsilon)
+
+    def _add(self, body, rows, density, mass, fixed, epsilon) -> np.ndarray:
+        """Append bodies of one shape with state ``rows``; returns their indices."""
         if density is not None and mass is not None:
             raise InvalidArgumentError("give density or mass, not both")
         tree, mesh = self._tree(body, epsilon)
+        positions, orientations, velocities, angular_velocities = rows
+        k = len(positions)
         if fixed:
             try:
                 center = mesh.center_mass
             except InvalidMeshError:
                 center = np.zeros(3)  # an open mesh: its own origin
             m, inertia, inverse = math.inf, np.eye(3), np.zeros((3, 3))
-            velocity, angular_velocity = np.zeros(3), np.zeros(3)
+            velocities, angular_velocities = np.zeros((k, 3)), np.zeros((k, 3))
         else:
             try:
                 unit = mesh.mass_properties(1.0)
@@ -198,19 +250,21 @@ class Scene:
             m, center = unit.mass * scale, unit.center_mass
             inertia = unit.inertia * scale
             inverse = np.linalg.inv(inertia)
-        self._append(
-            position=pose.position,
-            orientation=pose.orientation,
-            velocity=velocity,
-            angular_velocity=angular_velocity,
-            mass=m,
-            inertia=inertia,
-            inverse_inertia=inverse,
-            center=center,
-            tree=tree,
-            fixed=bool(fixed),
+        first = len(self)
+        self.positions = np.concatenate([self.positions, positions])
+        self.orientations = np.concatenate([self.orientations, orientations])
+        self.velocities = np.concatenate([self.velocities, velocities])
+        self.angular_velocities = np.concatenate([self.angular_velocities, angular_velocities])
+        self.masses = np.concatenate([self.masses, np.full(k, m)])
+        self.inertia = np.concatenate([self.inertia, np.tile(inertia, (k, 1, 1))])
+        self.inverse_inertia = np.concatenate([self.inverse_inertia, np.tile(inverse, (k, 1, 1))])
+        self.centers = np.concatenate([self.centers, np.tile(center, (k, 1))])
+        self.tree_index = np.concatenate(
+            [self.tree_index, np.full(k, self.trees.index(tree), np.int64)]
         )
-        return len(self) - 1
+        self.fixed = np.concatenate([self.fixed, np.full(k, bool(fixed))])
+        self.external_forces = np.concatenate([self.external_forces, np.zeros((k, 3))])
+        return np.arange(first, first + k)
 
     def add_plane(
         self,
@@ -222,7 +276,7 @@ class Scene:
     ) -> int:
         """Add a fixed square plane of side ``size`` centred at ``point``, facing ``normal``
         (2·divisions² triangles, ε = ``epsilon``); returns its index."""
-        n = _vector(normal, 3, "normal")
+        n = check_vector(normal, 3, "normal")
         length = float(np.linalg.norm(n))
         if length == 0:
             raise InvalidArgumentError("normal must not be zero")
@@ -240,7 +294,7 @@ class Scene:
 
     def set_external_force(self, body: int, force) -> None:
         """Constant world-frame force on ``body`` (added to gravity every step)."""
-        self.external_forces[self._body(body)] = _vector(force, 3, "force")
+        self.external_forces[self._body(body)] = check_vector(force, 3, "force")
 
     # ------------------------------------------------------------------ state
     @property
@@ -269,15 +323,9 @@ class Scene:
             ("angular_velocities", angular_velocities, 3),
         ):
             if value is not None:
-                new[name] = _rows(value, n, width, name)
+                new[name] = check_rows(value, n, width, name)
         if "orientations" in new:
-            norms = np.linalg.norm(new["orientations"], axis=1)
-            bad = np.flatnonzero(np.abs(norms - 1) > 1e-6)
-            if len(bad):
-                raise InvalidArgumentError(
-                    f"orientations[{bad[0]}] is not a unit quaternion (norm {norms[bad[0]]:.6g})"
-                )
-            new["orientations"] = new["orientations"] / norms[:, None]
+            new["orientations"] = check_quaternions(new["orientations"], n, "orientations")
         for name in ("velocities", "angular_velocities"):
             if name in new:
                 new[name][self.fixed] = 0.0
@@ -427,19 +475,6 @@ class Scene:
             self._bank = None
         return self.trees[self._tree_keys[key]], body
 
-    def _append(self, **row) -> None:
-        self.positions = np.vstack([self.positions, row["position"]])
-        self.orientations = np.vstack([self.orientations, row["orientation"]])
-        self.velocities = np.vstack([self.velocities, row["velocity"]])
-        self.angular_velocities = np.vstack([self.angular_velocities, row["angular_velocity"]])
-        self.masses = np.append(self.masses, row["mass"])
-        self.inertia = np.concatenate([self.inertia, row["inertia"][None]])
-        self.inverse_inertia = np.concatenate([self.inverse_inertia, row["inverse_inertia"][None]])
-        self.centers = np.vstack([self.centers, row["center"]])
-        self.tree_index = np.append(self.tree_index, self.trees.index(row["tree"]))
-        self.fixed = np.append(self.fixed, row["fixed"])
-        self.external_forces = np.vstack([self.external_forces, np.zeros(3)])
-
     def _body(self, body: int) -> int:
         if isinstance(body, bool) or not isinstance(body, int | np.integer):
             raise InvalidArgumentError(f"body must be an index, got {body!r}")
@@ -475,23 +510,3 @@ def _scheme(scheme: str) -> str:
     if scheme not in SCHEMES:
         raise InvalidArgumentError(f"scheme must be one of {', '.join(SCHEMES)}; got {scheme!r}")
     return scheme
-
-
-def _vector(value, n: int, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidArgumentError(f"{name} must be {n} numbers, got {value!r}") from None
-    if arr.shape != (n,) or not np.isfinite(arr).all():
-        raise InvalidArgumentError(f"{name} must be {n} finite numbers, got {value!r}")
-    return arr
-
-
-def _rows(value, n: int, width: int, name: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidArgumentError(f"{name} must be an ({n}, {width}) array") from None
-    if arr.shape != (n, width) or not np.isfinite(arr).all():
-        raise InvalidArgumentError(f"{name} must be an ({n}, {width}) array of finite numbers")
-    return arr

@@ -1,0 +1,110 @@
+"""The paper's scenarios (§6) as ready-made scenes.
+
+All bodies are spheres of unit diameter unless scaled (the paper's ε = 0.01 is relative to
+the diameter), density 1, the paper's spring law (K_s = 1,000). The paper gives no time
+step, speeds, tilt or friction coefficient; the values here are ours and are stated in
+each docstring. Each function returns a fresh :class:`~engine.scene.Scene`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import InvalidArgumentError
+from .forces import ContactModel, PaperSpring
+from .mesh import Mesh
+from .scene import Scene
+from .shapes import PAPER_UV_SPHERES, icosphere, paper_sphere
+
+__all__ = ["particle_on_plane", "particle_particle", "scale_difference", "sphere_grid", "sphere"]
+
+
+def sphere(triangles: int = 1224, diameter: float = 1.0) -> Mesh:
+    """The paper's sphere with ``triangles`` faces: a UV sphere for 12, 36, 140, 1,224
+    triangles, an icosphere for 80·4^k."""
+    if triangles in PAPER_UV_SPHERES:
+        return paper_sphere(triangles, radius=diameter / 2)
+    k = round(math.log(triangles / 20, 4)) if triangles >= 20 else -1
+    if k < 0 or 20 * 4**k != triangles:
+        raise InvalidArgumentError(
+            f"no sphere with {triangles} triangles: use {sorted(PAPER_UV_SPHERES)} or 20·4^k"
+        )
+    return icosphere(k, radius=diameter / 2)
+
+
+def particle_particle(
+    triangles: int = 1224,
+    speed: float = 0.5,
+    offset: float = 0.0,
+    gap: float = 0.05,
+    scheme: str = "implicit-surrogate",
+    contact_model: ContactModel | None = None,
+) -> Scene:
+    """Two spheres on a head-on course (no gravity): each moves at ``speed`` towards the
+    other, their surfaces ``gap`` apart, B displaced sideways by ``offset`` (0: head-on).
+    They bump and separate within about (gap + 0.04)/speed + 0.02 s of simulated time."""
+    mesh = sphere(triangles)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), scheme=scheme, contact_model=contact_model)
+    scene.add_body(mesh, position=(-(1 + gap) / 2, 0.0, 0.0), velocity=(speed, 0.0, 0.0))
+    scene.add_body(mesh, position=((1 + gap) / 2, offset, 0.0), velocity=(-speed, 0.0, 0.0))
+    return scene
+
+
+def particle_on_plane(
+    triangles: int = 1224,
+    tilt_degrees: float = 20.0,
+    drop: float = 0.1,
+    scheme: str = "implicit-surrogate",
+    contact_model: ContactModel | None = None,
+) -> Scene:
+    """A sphere dropped from ``drop`` above a plane of 512 triangles (16 divisions, side
+    8) tilted by ``tilt_degrees`` about y, under gravity: it hops, then rolls downhill
+    (friction μ = 0.5, damping ratio 0.3 by default)."""
+    theta = math.radians(tilt_degrees)
+    normal = np.array([math.sin(theta), 0.0, math.cos(theta)])
+    model = contact_model or PaperSpring(damping=0.3, friction=0.5)
+    scene = Scene(scheme=scheme, contact_model=model)
+    scene.add_plane(point=(0.0, 0.0, 0.0), normal=normal, size=8.0, divisions=16, epsilon=0.01)
+    scene.add_body(sphere(triangles), position=normal * (0.5 + 0.02 + drop) + [-2.0, 0.0, 0.0])
+    return scene
+
+
+def scale_difference(
+    scale: float = 2.0,
+    refine: bool = False,
+    speed: float = 0.5,
+    scheme: str = "implicit-surrogate",
+    contact_model: ContactModel | None = None,
+) -> Scene:
+    """The paper's scale study: an 80-triangle unit sphere against a sphere ``scale``
+    times larger, with 80 triangles (``refine=False``) or with 80·scale² triangles
+    (scale 2, 4, 8 → 320, 1,280, 5,120). Head-on, no gravity, 0.05 apart."""
+    small = sphere(80)
+    triangles = 80 * int(round(scale)) ** 2 if refine else 80
+    large = sphere(triangles, diameter=scale)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), scheme=scheme, contact_model=contact_model)
+    scene.add_body(small, position=(-0.5 - 0.025, 0.0, 0.0), velocity=(speed, 0.0, 0.0))
+    scene.add_body(large, position=(scale / 2 + 0.025, 0.0, 0.0), velocity=(-speed, 0.0, 0.0))
+    return scene
+
+
+def sphere_grid(
+    shape=(4, 4, 4),
+    triangles: int = 1224,
+    spacing: float = 1.015,
+    scheme: str = "implicit-surrogate",
+    contact_model: ContactModel | None = None,
+) -> Scene:
+    """A cubic grid of spheres at rest, no gravity, centres ``spacing`` apart (1.015: the
+    halos of face neighbours, 0.01 each, overlap by a quarter; nothing confines the grid,
+    so it slowly expands). The paper's run is 32 × 32 × 24 = 24,576 spheres of 1,224
+    triangles; all share one tree."""
+    shape = tuple(int(n) for n in shape)
+    if len(shape) != 3 or min(shape) < 1:
+        raise InvalidArgumentError(f"shape must be three positive counts, got {shape!r}")
+    mesh = sphere(triangles)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), scheme=scheme, contact_model=contact_model)
+    scene.add_bodies(mesh, np.array(list(np.ndindex(*shape)), dtype=np.float64) * spacing)
+    return scene

@@ -1,0 +1,121 @@
+"""Scenes: building, instancing, state, validation, the paper's scenarios."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine import InvalidArgumentError, Scene, build_tree, scenarios, shapes
+
+SPHERE = shapes.icosphere(1, radius=0.5)
+
+
+def test_bodies_of_one_mesh_share_one_tree():
+    scene = Scene()
+    scene.add_body(SPHERE, position=(0, 0, 0))
+    scene.add_bodies(SPHERE, [[2, 0, 0], [4, 0, 0]], velocities=[[1, 0, 0], [0, 1, 0]])
+    scene.add_body(SPHERE, position=(6, 0, 0), epsilon=0.02)  # another ε: another tree
+    assert len(scene) == 4 and len(scene.trees) == 2
+    np.testing.assert_array_equal(scene.tree_index, [0, 0, 0, 1])
+    np.testing.assert_allclose(scene.epsilon, [0.01, 0.01, 0.01, 0.02], rtol=1e-12)
+    np.testing.assert_allclose(scene.masses, SPHERE.volume)
+    np.testing.assert_array_equal(scene.velocities[1:3], [[1, 0, 0], [0, 1, 0]])
+    tree = build_tree(SPHERE, 0.03)
+    index = scene.add_body(tree, position=(8, 0, 0), mass=2.0)
+    assert scene.masses[index] == pytest.approx(2.0) and scene.epsilon[index] == 0.03
+
+
+def test_add_bodies_equals_add_body_one_by_one():
+    rng = np.random.default_rng(0)
+    positions, q = rng.normal(size=(5, 3)) * 3, rng.normal(size=(5, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    one, many = Scene(), Scene()
+    for p, o in zip(positions, q, strict=True):
+        one.add_body(SPHERE, position=p, orientation=o, density=2.0)
+    many.add_bodies(SPHERE, positions, orientations=q, density=2.0)
+    for name in ("positions", "orientations", "masses", "inertia", "centers", "tree_index"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(many, name))
+
+
+def test_fixed_bodies_and_planes_never_move():
+    scene = Scene()
+    plane = scene.add_plane(point=(0, 0, -1), normal=(0, 0, 1), size=4, divisions=4)
+    wall = scene.add_body(shapes.box((1, 1, 1)), position=(3, 0, 0), fixed=True)
+    ball = scene.add_body(SPHERE, position=(0, 0, 1))
+    before = scene.state
+    for _ in range(5):
+        scene.step(1e-3)
+    after = scene.state
+    for body in (plane, wall):
+        np.testing.assert_array_equal(after.positions[body], before.positions[body])
+        np.testing.assert_array_equal(after.orientations[body], before.orientations[body])
+    assert np.isinf(after.masses[plane]) and after.positions[ball, 2] < 1  # falls
+    assert after.time == pytest.approx(5e-3)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda s: s.add_body(SPHERE, orientation=(1, 1, 0, 0)), "unit quaternion"),
+        (lambda s: s.add_body(SPHERE, position=(0, np.nan, 0)), "finite"),
+        (lambda s: s.add_body(SPHERE, density=1, mass=1), "density or mass"),
+        (lambda s: s.add_body(SPHERE, mass=-1), "mass"),
+        (lambda s: s.add_body(shapes.plane(), fixed=False), "closed mesh"),
+        (lambda s: s.add_body("sphere"), "Mesh or an engine.SurrogateTree"),
+        (lambda s: s.add_bodies(SPHERE, [[0, 0, 0]], orientations=[[2, 0, 0, 0]]), "unit"),
+        (lambda s: s.step(0.0), "dt"),
+        (lambda s: s.step(1e-3, scheme="rk4"), "scheme"),
+        (lambda s: s.set_state(positions=np.zeros((3, 3))), r"\(1, 3\)"),
+        (lambda s: s.set_external_force(5, (0, 0, 1)), "no body 5"),
+    ],
+)
+def test_bad_input_is_rejected_and_changes_nothing(call, message):
+    scene = Scene()
+    scene.add_body(SPHERE, position=(0, 0, 0))
+    before = scene.state
+    with pytest.raises(InvalidArgumentError, match=message):
+        call(scene)
+    assert len(scene) == 1
+    np.testing.assert_array_equal(scene.state.positions, before.positions)
+
+
+def test_set_state_validates_everything_before_changing_anything():
+    scene = Scene(gravity=(0, 0, 0))
+    scene.add_bodies(SPHERE, [[0, 0, 0], [3, 0, 0]])
+    with pytest.raises(InvalidArgumentError):
+        scene.set_state(positions=[[1, 1, 1], [2, 2, 2]], orientations=[[1, 0, 0, 0], [0, 0, 0, 0]])
+    np.testing.assert_array_equal(scene.positions, [[0, 0, 0], [3, 0, 0]])
+    scene.set_state(velocities=[[1, 0, 0], [0, 0, 0]], orientations=[[1, 0, 0, 1e-7], [0, 1, 0, 0]])
+    np.testing.assert_allclose(np.linalg.norm(scene.orientations, axis=1), 1.0, atol=1e-15)
+    scene.step(1e-2)
+    assert scene.positions[0, 0] == pytest.approx(1e-2)
+
+
+@pytest.mark.parametrize("scheme", ["implicit-surrogate", "multiscale"])
+def test_a_grid_with_overlapping_halos_expands_symmetrically(scheme):
+    scene = scenarios.sphere_grid(shape=(2, 2, 2), scheme=scheme)  # 1,224-triangle spheres
+    centre = scene.positions.mean(0)
+    for _ in range(5):
+        stats = scene.step(1e-3)
+        assert stats.converged and stats.body_pairs == 12  # face neighbours only
+    linear, _ = scene.momentum()
+    assert np.abs(linear).max() < 1e-12
+    np.testing.assert_allclose(scene.positions.mean(0), centre, atol=1e-12)
+    outward = np.einsum("bi,bi->b", scene.velocities, scene.positions - centre)
+    assert (outward > 0).all()  # every sphere moves away from the centre, all alike
+    # multiscale converges to within the Picard tolerance, from surrogate-level forces
+    np.testing.assert_allclose(outward, outward[0], rtol=1e-6 if scheme != "multiscale" else 1e-3)
+
+
+def test_scenarios_build_the_paper_setups():
+    pp = scenarios.particle_particle(triangles=140)
+    assert len(pp) == 2 and len(pp.trees) == 1 and (pp.gravity == 0).all()
+    assert pp.velocities[0, 0] > 0 > pp.velocities[1, 0]
+    plane = scenarios.particle_on_plane(triangles=80)
+    assert plane.fixed.tolist() == [True, False]
+    assert sum(len(t.covered_faces(0)) for t in plane.trees) == 512 + 80
+    big = scenarios.scale_difference(scale=4, refine=True)
+    assert [len(t.covered_faces(0)) for t in big.trees] == [80, 1280]
+    assert big.positions[1, 0] - big.positions[0, 0] == pytest.approx(0.5 + 2 + 0.05)
+    with pytest.raises(InvalidArgumentError):
+        scenarios.sphere(100)
