@@ -9,8 +9,10 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def test_readme_tour_runs():
-    block = re.search(r"```python\n(.*?)```", README.read_text(), re.S)
-    assert block, "README has no python block"
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    assert blocks, "README has no python block"
     namespace: dict = {}
-    exec(compile(block.group(1), str(README), "exec"), namespace)  # noqa: S102
+    for block in blocks:  # in order, one namespace: later blocks use earlier names
+        exec(compile(block, str(README), "exec"), namespace)  # noqa: S102
     assert len(namespace["hits"].pairs) > 0  # the posed spheres overlap
+    assert namespace["stats"].converged and len(namespace["grid"]) == 8
