@@ -60,14 +60,16 @@ def particle_on_plane(
     contact_model: ContactModel | None = None,
 ) -> Scene:
     """A sphere dropped from ``drop`` above a plane of 512 triangles (16 divisions, side
-    8) tilted by ``tilt_degrees`` about y, under gravity: it hops, then rolls downhill
-    (friction μ = 0.5, damping ratio 0.3 by default)."""
+    8) tilted by ``tilt_degrees`` about y (downhill is +x), 2 uphill of its centre, under
+    gravity: it hops, then rolls downhill (friction μ = 0.5, damping ratio 0.3 by default)."""
     theta = math.radians(tilt_degrees)
     normal = np.array([math.sin(theta), 0.0, math.cos(theta)])
+    downhill = np.array([math.cos(theta), 0.0, -math.sin(theta)])
     model = contact_model or PaperSpring(damping=0.3, friction=0.5)
     scene = Scene(scheme=scheme, contact_model=model)
     scene.add_plane(point=(0.0, 0.0, 0.0), normal=normal, size=8.0, divisions=16, epsilon=0.01)
-    scene.add_body(sphere(triangles), position=normal * (0.5 + 0.02 + drop) + [-2.0, 0.0, 0.0])
+    # 2 uphill of the plane's centre, surfaces ``drop`` apart plus both halos
+    scene.add_body(sphere(triangles), position=normal * (0.5 + 0.02 + drop) - 2.0 * downhill)
     return scene
 
 

@@ -119,3 +119,13 @@ def test_scenarios_build_the_paper_setups():
     assert big.positions[1, 0] - big.positions[0, 0] == pytest.approx(0.5 + 2 + 0.05)
     with pytest.raises(InvalidArgumentError):
         scenarios.sphere(100)
+
+
+def test_the_dropped_sphere_starts_above_the_tilted_plane():
+    scene = scenarios.particle_on_plane(triangles=80, drop=0.1)
+    theta = np.radians(20)
+    normal = np.array([np.sin(theta), 0.0, np.cos(theta)])
+    height = scene.positions[1] @ normal
+    assert height == pytest.approx(0.5 + 0.02 + 0.1)
+    first = scene.step(1e-3)
+    assert first.contacts == 0  # it falls freely first
