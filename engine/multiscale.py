@@ -10,8 +10,9 @@ guessed configuration, then
   one level per iteration (the paper: "one Picard iteration per unfolding step");
 * **narrows**: a complete group of siblings that are all certainly apart folds back to
   its parent ("if all children … do certainly not contribute … they are replaced with
-  their parent"), unless that parent was folded before in this step and came back: the
-  **veto memory** then forbids folding it again, so the front cannot cycle.
+  their parent") when the parent is certainly apart too (checked at the fold), unless
+  that parent was folded before in this step and came back: the **veto memory** then
+  forbids folding it again, so the front cannot cycle.
 
 Forces: leaf entries give the exact contacts (merged as in a single query); a surrogate
 entry in contact gives a **damped surrogate force** (the paper: "we artificially reduce
@@ -112,7 +113,9 @@ class MultiscaleSearch:
         counters["sphere_pruned"] += int(apart.sum())
         face_a, face_b = _structure(ta)[1], _structure(tb)[1]
         is_leaf = (face_a[nodes[:, 0]] >= 0) & (face_b[nodes[:, 1]] >= 0)
-        coords, frames = _moved(tb, (rotation, shift), np.unique(nodes[:, 1]), dtype)
+        # B's nodes of the front and of its entries' parents (which a fold evaluates)
+        reached = np.concatenate([nodes[:, 1], front.parents[front.parents[:, 1] >= 0, 1]])
+        coords, frames = _moved(tb, (rotation, shift), np.unique(reached), dtype)
         set_a = _node_set(ta, scene.precision, False)
         set_b = TriangleSet.prepared(coords.T, frames.T)
         eps_a, eps_b = np.empty(len(ta), dtype), np.empty(len(tb), dtype)
@@ -185,8 +188,32 @@ class MultiscaleSearch:
                     ta, tb, res, hit, rot_a, origins[a], scene.centers[a]
                 )
         front.quiet = status == 0
+
+        def certainly_apart(pairs: np.ndarray) -> np.ndarray:
+            """(g,) bool: node pairs certainly apart at this configuration."""
+            centre = sb[pairs[:, 1], :3] @ rotation.T + shift
+            gap = np.linalg.norm(sa[pairs[:, 0], :3] - centre, axis=1)
+            apart = gap > sa[pairs[:, 0], 3] + sb[pairs[:, 1], 3] + margin
+            rest = np.flatnonzero(~apart)
+            if len(rest):
+                res = triangle_contacts(
+                    set_a,
+                    set_b,
+                    eps_a,
+                    eps_b,
+                    pairs=pairs[rest],
+                    kernel=_surrogate_kernel(scene),
+                    precision=scene.precision,
+                    threads=1,
+                )
+                counters["comparisons"] += res.stats.pairs
+                counters["iterative"] += res.stats.iterative
+                apart[rest] = True
+                apart[rest[_rows_of(pairs[rest], res.pairs)]] = False
+            return apart
+
         unfolded = self._widen(front, ta, tb, status, is_leaf)
-        folded = self._narrow(front, ta, tb)
+        folded = self._narrow(front, ta, tb, certainly_apart)
         return leaf, surrogate, unfolded, folded, count
 
     def _widen(self, front, ta, tb, status, is_leaf) -> int:
@@ -211,9 +238,11 @@ class MultiscaleSearch:
         front.quiet = np.concatenate(quiet)
         return len(grow)
 
-    def _narrow(self, front, ta, tb) -> int:
+    def _narrow(self, front, ta, tb, certainly_apart) -> int:
         """Fold complete sibling groups, all certainly apart at this evaluation, into their
-        parent — unless the parent is vetoed (it came back after an earlier fold)."""
+        parent — if the parent itself is certainly apart (checked now: a parent that would
+        report contact would only unfold again, the cycle the paper's veto memory breaks
+        after the fact) and is not vetoed (it came back after an earlier fold)."""
         parents = front.parents
         inner = np.flatnonzero(parents[:, 0] >= 0)
         if not len(inner):
@@ -221,14 +250,20 @@ class MultiscaleSearch:
         groups: dict[tuple[int, int], list[int]] = {}
         for r in inner.tolist():
             groups.setdefault((int(parents[r, 0]), int(parents[r, 1])), []).append(r)
-        drop, add = [], []
+        candidates = []
         for key, rows in groups.items():
             size = len(_children(ta, key[0])) * len(_children(tb, key[1]))
-            if key in front.veto or len(rows) != size or not front.quiet[rows].all():
-                continue
-            drop.extend(rows)
-            add.append((key, front.up.get(key, (-1, -1))))
-            front.folded.add(key)
+            if key not in front.veto and len(rows) == size and front.quiet[rows].all():
+                candidates.append(key)
+        if not candidates:
+            return 0
+        apart = certainly_apart(np.array(candidates, np.int64))
+        drop, add = [], []
+        for key, ok in zip(candidates, apart.tolist(), strict=True):
+            if ok:
+                drop.extend(groups[key])
+                add.append((key, front.up.get(key, (-1, -1))))
+                front.folded.add(key)
         if not add:
             return 0
         keep = np.ones(len(front.nodes), bool)
