@@ -221,21 +221,25 @@ class MultiscaleSearch:
         grow = np.flatnonzero((status > 0) & ~is_leaf)
         if not len(grow):
             return 0
-        keep = np.ones(len(front.nodes), bool)
-        keep[grow] = False
-        nodes, parents, quiet = [front.nodes[keep]], [front.parents[keep]], [front.quiet[keep]]
-        for r in grow:
-            i, j = (int(x) for x in front.nodes[r])
-            key = (i, j)
-            front.up[key] = tuple(int(x) for x in front.parents[r])
+        for r in grow.tolist():
+            key = (int(front.nodes[r, 0]), int(front.nodes[r, 1]))
+            front.up[key] = (int(front.parents[r, 0]), int(front.parents[r, 1]))
             if key in front.folded:
                 front.veto.add(key)  # re-added after a fold: never fold again this step
-            kids = np.array([[ci, cj] for ci in _children(ta, i) for cj in _children(tb, j)])
-            nodes.append(kids)
-            parents.append(np.tile([i, j], (len(kids), 1)))
-            quiet.append(np.zeros(len(kids), bool))  # not evaluated yet
-        front.nodes, front.parents = np.concatenate(nodes), np.concatenate(parents)
-        front.quiet = np.concatenate(quiet)
+        grown = front.nodes[grow]
+        i, j = grown[:, 0], grown[:, 1]
+        fa, fb = _fanout(ta, i), _fanout(tb, j)
+        first_a = np.where(ta.face[i] >= 0, i, ta.first_child[i])
+        first_b = np.where(tb.face[j] >= 0, j, tb.first_child[j])
+        sizes = fa * fb
+        group = np.repeat(np.arange(len(grow)), sizes)
+        rank = np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+        kids = np.stack([first_a[group] + rank // fb[group], first_b[group] + rank % fb[group]], 1)
+        keep = np.ones(len(front.nodes), bool)
+        keep[grow] = False
+        front.nodes = np.concatenate([front.nodes[keep], kids])
+        front.parents = np.concatenate([front.parents[keep], grown[group]])
+        front.quiet = np.concatenate([front.quiet[keep], np.zeros(len(kids), bool)])
         return len(grow)
 
     def _narrow(self, front, ta, tb, certainly_apart) -> int:
@@ -247,39 +251,34 @@ class MultiscaleSearch:
         inner = np.flatnonzero(parents[:, 0] >= 0)
         if not len(inner):
             return 0
-        groups: dict[tuple[int, int], list[int]] = {}
-        for r in inner.tolist():
-            groups.setdefault((int(parents[r, 0]), int(parents[r, 1])), []).append(r)
-        candidates = []
-        for key, rows in groups.items():
-            size = len(_children(ta, key[0])) * len(_children(tb, key[1]))
-            if key not in front.veto and len(rows) == size and front.quiet[rows].all():
-                candidates.append(key)
-        if not candidates:
+        width = len(tb)
+        keys = parents[inner, 0] * width + parents[inner, 1]
+        unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+        pa, pb = unique // width, unique % width
+        size = _fanout(ta, pa) * _fanout(tb, pb)
+        restless = np.bincount(inverse, weights=~front.quiet[inner], minlength=len(unique))
+        vetoed = np.isin(unique, [i * width + j for i, j in front.veto])
+        candidate = (counts == size) & (restless == 0) & ~vetoed
+        if not candidate.any():
             return 0
-        apart = certainly_apart(np.array(candidates, np.int64))
-        drop, add = [], []
-        for key, ok in zip(candidates, apart.tolist(), strict=True):
-            if ok:
-                drop.extend(groups[key])
-                add.append((key, front.up.get(key, (-1, -1))))
-                front.folded.add(key)
-        if not add:
+        pairs = np.stack([pa[candidate], pb[candidate]], axis=1)
+        fold = unique[candidate][certainly_apart(pairs)]
+        if not len(fold):
             return 0
+        add = [(int(k // width), int(k % width)) for k in fold.tolist()]
+        front.folded.update(add)
         keep = np.ones(len(front.nodes), bool)
-        keep[drop] = False
-        front.nodes = np.concatenate([front.nodes[keep], np.array([k for k, _ in add])])
-        front.parents = np.concatenate([front.parents[keep], np.array([u for _, u in add])])
+        keep[inner[np.isin(keys, fold)]] = False
+        front.nodes = np.concatenate([front.nodes[keep], np.array(add, np.int64)])
+        ups = np.array([front.up.get(k, (-1, -1)) for k in add], np.int64)
+        front.parents = np.concatenate([front.parents[keep], ups])
         front.quiet = np.concatenate([front.quiet[keep], np.zeros(len(add), bool)])
         return len(add)
 
 
-def _children(tree, node: int) -> list[int]:
-    face = tree.face[node]
-    if face >= 0:
-        return [node]
-    start = int(tree.first_child[node])
-    return list(range(start, start + int(tree.child_count[node])))
+def _fanout(tree, nodes: np.ndarray) -> np.ndarray:
+    """(k,) number of children of each node (1 for a leaf: it stands for itself)."""
+    return np.where(tree.face[nodes] >= 0, 1, tree.child_count[nodes]).astype(np.int64)
 
 
 def _rows_of(nodes: np.ndarray, found: np.ndarray) -> np.ndarray:
