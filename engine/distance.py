@@ -352,7 +352,7 @@ def triangle_contacts(
     def run(start: int, stop: int):
         capacity = 1024 + 8 * (stop - start)
         while True:  # count, allocate, fill: a re-run only when the first guess was short
-            out = _contact_buffers(capacity, dtype)
+            out = _contact_buffers(capacity, sa.coords)
             stats = np.zeros(tb.N_STATS, np.int64)
             count = call(start, stop, out, stats)
             if count <= capacity:
@@ -402,15 +402,9 @@ def _map_chunks(fn, n_outer: int, work: int, threads: int | None) -> list:
     return [f.result() for f in [pool.submit(fn, s, e) for s, e in spans]]
 
 
-def _contact_buffers(capacity: int, dtype) -> tuple:
-    return (
-        np.empty(capacity, np.int64),
-        np.empty(capacity, np.int64),
-        np.empty(capacity, dtype),
-        np.empty((3, capacity), dtype),
-        np.empty((3, capacity), dtype),
-        np.empty(capacity, np.int8),
-    )
+def _contact_buffers(capacity: int, like: np.ndarray) -> tuple:
+    """Output buffers of the contact forms for ``capacity`` results, floats like ``like``."""
+    return tb.result_buffers(capacity, like)
 
 
 def _prepare(a, b, kernel, precision, iterations, rtol) -> tuple:

@@ -30,22 +30,7 @@ PAPER, LINEAR, HERTZ = 0, 1, 2
 def rotation_matrices(orientations, out):
     """``out (n, 3, 3)``: rotation of each unit quaternion ``orientations (n, 4)``."""
     for b in range(orientations.shape[0]):
-        w, x, y, z = orientations[b, 0], orientations[b, 1], orientations[b, 2], orientations[b, 3]
-        out[b, 0, 0], out[b, 0, 1], out[b, 0, 2] = (
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-        )
-        out[b, 1, 0], out[b, 1, 1], out[b, 1, 2] = (
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-        )
-        out[b, 2, 0], out[b, 2, 1], out[b, 2, 2] = (
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        )
+        _rotation(orientations[b], out[b])
 
 
 @njit(**JIT)

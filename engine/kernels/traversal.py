@@ -21,7 +21,7 @@ from numba import njit
 from .contact_merge import contact_kernel
 from .jit import INLINE, JIT
 from .rigid import margin_kernel, move_kernel
-from .triangle_batch import STAT_SPHERES, ZERO, listed_kernel, listed_workspace
+from .triangle_batch import STAT_SPHERES, ZERO, listed_kernel, listed_workspace, result_buffers
 
 
 @njit(**JIT)
@@ -67,8 +67,8 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
     margin_kernel(epsilon_b, face_b, margin, eps_b)
     rm = (coords_a, frames_a, coords_b, frames_b)
     buffers = listed_workspace(coords_a)
-    found = _buffers(256, coords_a)
-    hits = _buffers(256, coords_a)
+    found = result_buffers(256, coords_a)
+    hits = result_buffers(256, coords_a)
     pruned = ZERO
     if _apart(spheres_a, ZERO, spheres_b, centres_b, centred, ZERO, rotation, shift, margin):
         front = np.zeros((0, 2), np.int64)
@@ -177,21 +177,6 @@ def _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, marg
 
 
 @njit(**JIT)
-def _buffers(capacity, like):
-    """Result buffers of ``listed_kernel`` (see ``triangle_batch._record``), floats of
-    the dtype of ``like``."""
-    dtype = like.dtype
-    return (
-        np.empty(capacity, np.int64),
-        np.empty(capacity, np.int64),
-        np.empty(capacity, dtype),
-        np.empty((3, capacity), dtype),
-        np.empty((3, capacity), dtype),
-        np.empty(capacity, np.int8),
-    )
-
-
-@njit(**JIT)
 def _grown_pairs(pairs, n, need):
     """``(max(need, 2·len), 2)`` int64 rows holding the first ``n`` rows of ``pairs``."""
     grown = np.empty((max(need, 2 * pairs.shape[0]), 2), np.int64)
@@ -204,7 +189,7 @@ def _room(out, n, need):
     """``out`` if it holds ``need`` rows, else larger buffers with its first ``n`` rows."""
     if out[0].shape[0] >= need:
         return out
-    grown = _buffers(max(need, 2 * out[0].shape[0]), out[2])
+    grown = result_buffers(max(need, 2 * out[0].shape[0]), out[2])
     grown[0][:n] = out[0][:n]
     grown[1][:n] = out[1][:n]
     grown[2][:n] = out[2][:n]

@@ -333,6 +333,21 @@ def _record(n, i, j, d, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s):
 
 
 @njit(**JIT)
+def result_buffers(capacity, like):
+    """Result buffers of the contact forms (the ``out`` of :func:`_record`) with room for
+    ``capacity`` results, floats of the dtype of ``like``."""
+    dtype = like.dtype
+    return (
+        np.empty(capacity, np.int64),
+        np.empty(capacity, np.int64),
+        np.empty(capacity, dtype),
+        np.empty((3, capacity), dtype),
+        np.empty((3, capacity), dtype),
+        np.empty(capacity, np.int8),
+    )
+
+
+@njit(**JIT)
 def workspace(a):
     """Block buffers: gathered pairs (A, its frames, B, its frames), their original
     indices and contact distances, scratch for the iterative kernel, distances."""

@@ -388,9 +388,9 @@ def test_more_contacts_than_the_first_buffer_holds(
     capacities = []
     buffers = engine.distance._contact_buffers
 
-    def spy(capacity, dtype):
+    def spy(capacity, like):
         capacities.append(capacity)
-        return buffers(capacity, dtype)
+        return buffers(capacity, like)
 
     monkeypatch.setattr(engine.distance, "_contact_buffers", spy)
     t = engine.shapes.icosphere(subdivisions).triangles
