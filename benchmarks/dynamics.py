@@ -114,7 +114,16 @@ ISSUE_TARGETS = {
     "grid_geometry_memory_mib": 200.0,
 }
 
-COUNTERS = ("comparisons", "iterative", "fallbacks", "sphere_pruned", "unfoldings", "folds")
+COUNTERS = (
+    "comparisons",
+    "iterative",
+    "fallbacks",
+    "sphere_pruned",
+    "unfoldings",
+    "folds",
+    "evaluations",
+    "listed",
+)
 
 
 # ---------------------------------------------------------------- helpers
@@ -586,6 +595,7 @@ def grid_run(shape, scheme: str, steps: int) -> dict:
             {
                 "seconds": r.seconds,
                 "picard_iterations": r.picard_iterations,
+                "evaluations": r.evaluations,
                 "converged": r.converged,
                 "comparisons": r.comparisons,
                 "iterative": r.iterative,
@@ -693,6 +703,45 @@ def full_grid(search: bool) -> dict:
     out["geometry"] = geometry_bytes(scene)
     del scene
     gc.collect()
+    if search:
+        out["implicit_steps"] = full_grid_implicit(IMPLICIT_FULL_STEPS)
+    return out
+
+
+IMPLICIT_FULL_STEPS = 3
+
+
+def full_grid_implicit(steps: int) -> dict:
+    """``steps`` implicit-surrogate steps of the paper's grid, measured (fresh scene)."""
+    gc.collect()
+    reset_peak_rss()
+    scene = scenarios.sphere_grid(
+        shape=PAPER_GRID_SHAPE, triangles=1224, spacing=GRID_SPACING, scheme="implicit-surrogate"
+    )
+    rows = []
+    for _ in range(steps):
+        r = scene.step(DT)
+        rows.append(
+            {
+                "seconds": r.seconds,
+                "picard_iterations": r.picard_iterations,
+                "evaluations": r.evaluations,
+                "listed": r.listed,
+                "converged": r.converged,
+                "comparisons": r.comparisons,
+                "contacts": r.contacts,
+                "body_pairs": r.body_pairs,
+            }
+        )
+        print(f"  full grid implicit-surrogate step: {rows[-1]}", flush=True)
+    out = {
+        "steps": rows,
+        "pair_cache_mib": scene.pair_cache.nbytes / 2**20,
+        "peak_rss_mib": rss_mib("VmHWM"),
+        "threads": os.cpu_count(),
+    }
+    del scene
+    gc.collect()
     return out
 
 
@@ -753,6 +802,19 @@ def print_full(full: dict, estimate: dict) -> None:
             f" {e['seconds']:.2f} s, {e['comparisons']:.3g} comparisons, {e['iterative']:.3g}"
             f" iterative, {e['fallbacks']:.3g} fallbacks, {e['contacts']:,} contacts"
         )
+    if "implicit_steps" in full:
+        m = full["implicit_steps"]
+        print(
+            f"MEASURED implicit-surrogate steps of the full grid on {m['threads']} threads"
+            f" (pair cache {m['pair_cache_mib']:.0f} MiB, process peak"
+            f" {m['peak_rss_mib']:.0f} MiB):"
+        )
+        for i, r in enumerate(m["steps"]):
+            print(
+                f"  step {i}: {r['seconds']:.2f} s, {r['picard_iterations']} Picard iterations,"
+                f" {r['evaluations']} searches ({r['listed']:,} pair searches from the"
+                f" lists), converged {r['converged']}, {r['comparisons']:.3g} comparisons"
+            )
     for scheme, entries in estimate.items():
         paper = PAPER_GRID[scheme]
         print(

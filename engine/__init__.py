@@ -4,7 +4,7 @@ Never imports ``service`` or ``clients``.
 """
 
 from . import scenarios, shapes
-from .batch import ContactBatch, TreeBank, find_contacts_batch
+from .batch import ContactBatch, PairCache, TreeBank, find_contacts_batch
 from .broadphase import candidate_pairs
 from .contacts import ContactSet, ContactStats, find_contacts
 from .distance import (
@@ -41,6 +41,7 @@ __all__ = [
     "Scene",
     "SceneState",
     "StepStats",
+    "PairCache",
     "TreeBank",
     "find_contacts_batch",
     "DEFAULT_ITERATIONS",

@@ -56,8 +56,8 @@ class ContactBatch:
     points, normals : (c, 3) float64 — world frame; normals unit, from A to B
     overlaps : (c,) float64
     levels : (k, MAX_LEVELS) int64 — comparisons per level of each pair
-    counts : (k, 6) int64 — depth, unfoldings, iterative, fallbacks, comparisons,
-        node pairs pruned by bounding spheres
+    counts : (k, 7) int64 — depth, unfoldings, iterative, fallbacks, comparisons,
+        node pairs pruned by bounding spheres, 1 if the pair's cached list served
     """
 
     pair_offsets: np.ndarray
@@ -99,6 +99,83 @@ class ContactBatch:
     def comparisons(self) -> int:
         """Triangle comparisons over all pairs."""
         return int(self.counts[:, kb.COUNT_COMPARISONS].sum())
+
+
+class PairCache:
+    """Leaf pairs near contact kept per body pair between searches (a Verlet list).
+
+    For each cached pair: the leaf pairs within ε_a + ε_b + s at a reference pose of B
+    relative to A, s = ``skin``·(ε_a + ε_b). While no point of B has moved by s or more
+    relative to A since then, every leaf pair in contact is on the list (a pair at
+    distance ≤ ε_a + ε_b now was within ε_a + ε_b + s then), so evaluating the list
+    alone gives exactly the traversal's contacts — bit for bit, with the same kernels on
+    the same moved triangles. Past that, the pair is traversed again (with ε grown by
+    s/2 per body) and its list renewed. Entries are keyed by an integer per body pair
+    chosen by the caller; a search keeps exactly the entries of the pairs it was asked.
+
+    Attributes
+    ----------
+    skin : float — s relative to the pair's ε_a + ε_b (0: no caching)
+    keys : (m,) int64 sorted; rotations (m, 3, 3), shifts (m, 3) float64 — reference poses
+    offsets : (m + 1,) int64; near : (L, 2) int64 — the lists (node pairs), CSR
+    """
+
+    def __init__(self, skin: float = 0.5) -> None:
+        skin = float(skin)
+        if not (np.isfinite(skin) and skin >= 0):
+            raise InvalidArgumentError(f"skin must be finite and >= 0, got {skin}")
+        self.skin = skin
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget every list."""
+        self.keys = np.zeros(0, np.int64)
+        self.rotations = np.zeros((0, 3, 3))
+        self.shifts = np.zeros((0, 3))
+        self.offsets = np.zeros(1, np.int64)
+        self.near = np.zeros((0, 2), np.int64)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(
+            a.nbytes for a in (self.keys, self.rotations, self.shifts, self.offsets, self.near)
+        )
+
+    def _slots(self, keys: np.ndarray) -> np.ndarray:
+        """(k,) int64 entry of each key, −1 where none."""
+        at = np.searchsorted(self.keys, keys)
+        hit = at < len(self.keys)
+        hit[hit] = self.keys[at[hit]] == keys[hit]
+        return np.where(hit, at, -1).astype(np.int64)
+
+    def _arrays(self, slots: np.ndarray) -> tuple:
+        return (self.skin, slots, self.rotations, self.shifts, self.offsets, self.near)
+
+    def _replace(self, keys: np.ndarray, batch: tuple) -> None:
+        near_offsets, near, rotations, shifts = batch
+        order = np.argsort(keys, kind="stable")
+        sizes = np.diff(near_offsets)[order]
+        self.keys = np.ascontiguousarray(keys[order], np.int64)
+        self.rotations = rotations[order]
+        self.shifts = shifts[order]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        rows = np.repeat(near_offsets[:-1][order] - self.offsets[:-1], sizes) + np.arange(
+            int(self.offsets[-1])
+        )
+        self.near = near[rows]
+
+
+_NO_CACHE = (
+    0.0,
+    np.zeros(0, np.int64),
+    np.zeros((0, 3, 3)),
+    np.zeros((0, 3)),
+    np.zeros(1, np.int64),
+    np.zeros((0, 2), np.int64),
+)
 
 
 class TreeBank:
@@ -159,6 +236,8 @@ class TreeBank:
         orientation_b: np.ndarray,
         kernel: str = "hybrid",
         threads: int | None = None,
+        cache: PairCache | None = None,
+        keys: np.ndarray | None = None,
     ) -> ContactBatch:
         """Multiresolution contacts of ``k`` body pairs.
 
@@ -170,6 +249,8 @@ class TreeBank:
             norms within 1e-6 of 1 are renormalised
         kernel : "exact", "iterative" or "hybrid" — for leaf pairs
         threads : int, optional — worker threads (default: all cores)
+        cache : PairCache, optional — lists kept between calls, with ``keys (k,)`` int64
+            naming each pair (distinct); the cache then holds exactly these pairs
 
         Returns
         -------
@@ -177,6 +258,13 @@ class TreeBank:
         """
         check_kernel(kernel)
         k = _count(tree_a, "tree_a")
+        if cache is not None:
+            keys = np.asarray(keys)
+            if keys.shape != (k,) or (k and not np.issubdtype(keys.dtype, np.integer)):
+                raise InvalidArgumentError(f"keys must be {k} integers naming the pairs")
+            keys = keys.astype(np.int64)
+            if len(np.unique(keys)) != k:
+                raise InvalidArgumentError("keys must be distinct")
         queries = (
             _indices(tree_a, k, len(self), "tree_a"),
             _indices(tree_b, k, len(self), "tree_b"),
@@ -185,11 +273,12 @@ class TreeBank:
             check_rows(position_b, k, 3, "position_b"),
             check_quaternions(orientation_b, k, "orientation_b"),
         )
-        return self._run(queries, kernel, threads)
+        return self._run(queries, kernel, threads, cache, keys)
 
-    def _run(self, queries: tuple, kernel: str, threads: int | None) -> ContactBatch:
+    def _run(self, queries: tuple, kernel: str, threads: int | None, cache=None, keys=None):
         """The query arrays validated (see :meth:`find_contacts`)."""
         k = len(queries[0])
+        arrays = _NO_CACHE if cache is None else cache._arrays(cache._slots(keys))
         coarse, leaf = query_parameters(kernel, self.dtype)
         params = (coarse, leaf, kernel != "iterative", ULP[self.dtype], TINY)
         counts = np.zeros((k, kb.N_COUNTS), np.int64)
@@ -201,6 +290,7 @@ class TreeBank:
                 self.meta,
                 queries,
                 params,
+                arrays,
                 start,
                 stop,
                 counts[start:stop],
@@ -218,7 +308,10 @@ class TreeBank:
                 for s, e in zip(bounds[:-1], bounds[1:], strict=True)
             ]
             parts = [f.result() for f in futures]
-        return _join(parts, counts, levels)
+        batch = _join(parts, counts, levels)
+        if cache is not None:
+            cache._replace(keys, _join_lists(parts))
+        return batch
 
 
 def find_contacts_batch(
@@ -286,6 +379,19 @@ def _join(parts, counts, levels) -> ContactBatch:
         np.concatenate([p[5] for p in parts]),
         levels,
         counts,
+    )
+
+
+def _join_lists(parts) -> tuple:
+    """The chunks' lists and reference poses, concatenated (see :class:`PairCache`)."""
+    offsets = [np.zeros(1, np.int64)]
+    for part in parts:
+        offsets.append(part[6][1:] + offsets[-1][-1])
+    return (
+        np.concatenate(offsets),
+        np.concatenate([p[7] for p in parts]),
+        np.concatenate([p[8] for p in parts]),
+        np.concatenate([p[9] for p in parts]),
     )
 
 

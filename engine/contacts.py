@@ -296,8 +296,8 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
     stats = np.zeros(tb.N_STATS, np.int64)
     levels = np.zeros(64, np.int64)
     margin = query_margin(extent(tree_a), extent(tree_b), pose[1], ULP[dtype])
-    depth, unfoldings, result = query_kernel(
-        body_a, body_b, pose, margin, coarse, leaf, contact, stats, levels
+    depth, unfoldings, result, _ = query_kernel(
+        body_a, body_b, pose, margin, 0.0, coarse, leaf, contact, stats, levels
     )
     counters = (
         tuple(levels[: min(depth, len(levels))].tolist()),

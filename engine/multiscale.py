@@ -62,12 +62,30 @@ class _Front:
 
 
 class MultiscaleSearch:
-    """Contacts of a scene's configurations with per-pair fronts kept between calls (one
-    Picard step). Calling it returns ``(leaf contacts, surrogate contacts, changed)``."""
+    """Contacts of a scene's configurations with per-pair fronts kept between calls.
+    Calling it returns ``(leaf contacts, surrogate contacts, changed)``.
+
+    Fronts are **warm-started across time steps** (the paper's stated future work): a
+    step starts from the fronts the previous step ended with, not from the roots; only
+    the veto memory and the fold history are per step (:meth:`begin_step`). Any complete
+    cut of the tree product is a valid front — convergence still requires that nothing
+    unfolds, so the contacts of a converged step are exactly the leaf contacts whatever
+    front it started from. A pair that no iteration of a step
+    evaluated (it left the broad phase's candidates) loses its front."""
 
     def __init__(self, scene) -> None:
         self.scene = scene
         self.fronts: dict[tuple[int, int], _Front] = {}
+        self.seen: set[tuple[int, int]] = set()  # pairs evaluated since begin_step
+
+    def begin_step(self) -> None:
+        """Forget the veto memory and fold history (they live for one step) and the
+        fronts of pairs the last step never evaluated."""
+        self.fronts = {k: f for k, f in self.fronts.items() if k in self.seen}
+        self.seen = set()
+        for front in self.fronts.values():
+            front.folded.clear()
+            front.veto.clear()
 
     def __call__(self, positions, orientations):
         from .scene import Contacts
@@ -75,12 +93,22 @@ class MultiscaleSearch:
         scene = self.scene
         origins, pairs = scene.configuration(positions, orientations)
         counters = dict.fromkeys(
-            ("comparisons", "iterative", "fallbacks", "sphere_pruned", "unfoldings", "folds"), 0
+            (
+                "comparisons",
+                "iterative",
+                "fallbacks",
+                "sphere_pruned",
+                "unfoldings",
+                "folds",
+                "listed",
+            ),
+            0,
         )
         leaf_rows, surrogate_rows = [], []
         triangle_pairs, changed = 0, False
         for a, b in pairs.tolist():
             front = self.fronts.setdefault((a, b), _Front())
+            self.seen.add((a, b))
             leaf, surrogate, unfolded, folded, count = self._evaluate(
                 front, a, b, origins, orientations, counters
             )

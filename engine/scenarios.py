@@ -98,18 +98,48 @@ def scale_difference(
 def sphere_grid(
     shape=(4, 4, 4),
     triangles: int = 1224,
-    spacing: float = 1.0195,
+    spacing: float | None = None,
     scheme: str = "implicit-surrogate",
     contact_model: ContactModel | None = None,
+    orientations: str = "aligned",
+    seed: int = 0,
 ) -> Scene:
-    """A cubic grid of spheres at rest, no gravity, centres ``spacing`` apart (1.0195: the
-    halos of face neighbours, 0.01 each, overlap by 0.0005, 2.5 % of their reach — "barely
-    overlapping"; nothing confines the grid, so it slowly expands). The paper's run is
-    32 × 32 × 24 = 24,576 spheres of 1,224 triangles; all share one tree."""
+    """A cubic grid of spheres at rest, no gravity (nothing confines the grid, so it
+    slowly expands). The paper's run is 32 × 32 × 24 = 24,576 spheres of 1,224
+    triangles; all share one tree.
+
+    ``orientations="aligned"``: every sphere unrotated, centres 1.0195 apart by default:
+    the halos of face neighbours (0.01 each) overlap by 0.0005, 2.5 % of their reach —
+    "barely overlapping" — vertex to vertex (a UV sphere's poles face each other along
+    z: 36 × 36 triangle pairs in contact there). ``"random"``: uniformly random
+    orientations (seeded), the paper's "sphere-like particle shapes from a randomised
+    parameterisation"; the default spacing is twice the mesh's inradius + 0.0195, so
+    that every neighbour pair's halos overlap, by 0.0005 … 0.0081 whatever the
+    orientations.
+    """
     shape = tuple(int(n) for n in shape)
     if len(shape) != 3 or min(shape) < 1:
         raise InvalidArgumentError(f"shape must be three positive counts, got {shape!r}")
+    if orientations not in ("aligned", "random"):
+        raise InvalidArgumentError(
+            f"orientations must be 'aligned' or 'random', got {orientations!r}"
+        )
     mesh = sphere(triangles)
+    if spacing is None:
+        spacing = 1.0195 if orientations == "aligned" else 2 * _inradius(mesh) + 0.0195
     scene = Scene(gravity=(0.0, 0.0, 0.0), scheme=scheme, contact_model=contact_model)
-    scene.add_bodies(mesh, np.array(list(np.ndindex(*shape)), dtype=np.float64) * spacing)
+    positions = np.array(list(np.ndindex(*shape)), dtype=np.float64) * float(spacing)
+    quaternions = None
+    if orientations == "random":
+        quaternions = np.random.default_rng(seed).normal(size=(len(positions), 4))
+        quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
+    scene.add_bodies(mesh, positions, orientations=quaternions)
     return scene
+
+
+def _inradius(mesh: Mesh) -> float:
+    """Smallest distance from the origin to the plane of a face of ``mesh``."""
+    tri = mesh.vertices[mesh.faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    return float(np.abs(np.einsum("ij,ij->i", normal, tri[:, 0])).min())

@@ -28,7 +28,7 @@ from .arguments import (
     check_rows,
     check_vector,
 )
-from .batch import TreeBank
+from .batch import PairCache, TreeBank
 from .broadphase import candidate_pairs
 from .contacts import find_contacts, spheres
 from .errors import InvalidArgumentError, InvalidMeshError
@@ -101,6 +101,10 @@ class Scene:
     max_halvings : int — a step whose Picard iteration does not converge is redone as two
         half steps, at most this deep (0: report the failure in the step's stats only)
     threads : int, optional — worker threads of the narrow phase (default: all cores)
+    skin : float — the multiresolution search keeps, per body pair, the leaf pairs within
+        ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
+        by less than that skin (:class:`~engine.batch.PairCache`: exactly the same
+        contacts); 0 searches every configuration from the roots
     """
 
     def __init__(
@@ -114,6 +118,7 @@ class Scene:
         max_picard_iterations: int = 50,
         max_halvings: int = 0,
         threads: int | None = None,
+        skin: float = 0.5,
     ) -> None:
         self.gravity = check_vector(gravity, 3, "gravity")
         model = PaperSpring() if contact_model is None else contact_model
@@ -139,6 +144,9 @@ class Scene:
         self.trees: list[SurrogateTree] = []
         self._tree_keys: dict[tuple, int] = {}
         self._bank: TreeBank | None = None
+        self._multiscale = None
+        self.pair_cache = PairCache(skin)
+        self._evaluation = None  # the last converged Picard step's final forces
         n = 0
         self.positions = np.zeros((n, 3))
         self.orientations = np.zeros((n, 4))
@@ -251,6 +259,8 @@ class Scene:
             inertia = unit.inertia * scale
             inverse = np.linalg.inv(inertia)
         first = len(self)
+        self.pair_cache.clear()  # its keys number the pairs by the body count
+        self._evaluation = None
         self.positions = np.concatenate([self.positions, positions])
         self.orientations = np.concatenate([self.orientations, orientations])
         self.velocities = np.concatenate([self.velocities, velocities])
@@ -381,7 +391,16 @@ class Scene:
         """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``."""
         origins, pairs = self.configuration(positions, orientations)
         counters = dict.fromkeys(
-            ("comparisons", "iterative", "fallbacks", "sphere_pruned", "unfoldings", "folds"), 0
+            (
+                "comparisons",
+                "iterative",
+                "fallbacks",
+                "sphere_pruned",
+                "unfoldings",
+                "folds",
+                "listed",
+            ),
+            0,
         )
         if hierarchy:
             batch = self.bank.find_contacts(
@@ -393,6 +412,8 @@ class Scene:
                 orientations[pairs[:, 1]],
                 kernel=self.kernel,
                 threads=self.threads,
+                cache=self.pair_cache,
+                keys=pairs[:, 0] * len(self) + pairs[:, 1],
             )
             from .kernels import batch as kb
 
@@ -402,6 +423,7 @@ class Scene:
                 ("fallbacks", kb.COUNT_FALLBACKS),
                 ("sphere_pruned", kb.COUNT_SPHERES),
                 ("unfoldings", kb.COUNT_UNFOLDINGS),
+                ("listed", kb.COUNT_LISTED),
             ):
                 counters[name] = int(batch.counts[:, column].sum())
             counters["triangle_pairs"] = len(batch.pairs)
@@ -434,6 +456,16 @@ class Scene:
             np.concatenate(overlaps) if overlaps else np.zeros(0),
             counters,
         )
+
+    @property
+    def multiscale(self):
+        """The :class:`~engine.multiscale.MultiscaleSearch` whose fronts persist across
+        this scene's steps."""
+        if self._multiscale is None:
+            from .multiscale import MultiscaleSearch
+
+            self._multiscale = MultiscaleSearch(self)
+        return self._multiscale
 
     @property
     def bank(self) -> TreeBank:

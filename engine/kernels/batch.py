@@ -16,15 +16,15 @@ from numba import njit
 
 from .jit import JIT
 from .rigid import EXACT_JIT
-from .traversal import query_kernel
+from .traversal import listed_query, query_kernel
 from .triangle_batch import N_STATS, STAT_FALLBACKS, STAT_ITERATIVE, STAT_PAIRS, STAT_SPHERES
 
 MARGIN_ULPS = 256.0
 SQRT3 = np.sqrt(3.0)
 # Columns of the per-query counters written by :func:`batch_kernel`.
 COUNT_DEPTH, COUNT_UNFOLDINGS, COUNT_ITERATIVE, COUNT_FALLBACKS, COUNT_COMPARISONS = range(5)
-COUNT_SPHERES = 5
-N_COUNTS = 6
+COUNT_SPHERES, COUNT_LISTED = 5, 6
+N_COUNTS = 7
 
 
 @njit(**EXACT_JIT)
@@ -66,7 +66,7 @@ def query_margin(extent_a, extent_b, shift, ulp):
 
 
 @njit(**JIT)
-def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
+def batch_kernel(bank, meta, queries, params, cache, start, stop, counts, levels):
     """Contacts of body pairs ``start ≤ q < stop``; returns ragged results.
 
     ``bank = (coords (N, 9), frames (N, 14)`` in the query precision, ``master
@@ -79,10 +79,20 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
     ``params = (surrogate params, leaf params, keep_all, ulp, tiny)`` (see
     :func:`query_kernel`; ``tiny`` relative to the larger bounding radius).
 
+    ``cache = (skin, slot (k,) int64, rotation (m, 3, 3), shift (m, 3), offsets
+    (m + 1,) int64, near (L, 2) int64)``: with ``skin > 0`` each query keeps a list of
+    its leaf pairs within ε_a + ε_b + s, s = skin·(ε_a + ε_b) (leaf ε), found at a
+    reference pose of B relative to A. Query q uses the list of entry ``slot[q]``
+    (−1: none) instead of a traversal while B's points have moved by less than s
+    relative to A since its reference pose (:func:`motion_bound`, plus the query's
+    margin); else it traverses with every ε grown by s/2 and starts a new list.
+
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
     (pairs evaluated per level). Returns ``(pair_offsets, pairs, contact_offsets,
-    points, normals, overlaps)``: query ``start + t`` owns rows
-    ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs`` and likewise for contacts.
+    points, normals, overlaps, near_offsets, near, rotations, shifts)``: query
+    ``start + t`` owns rows ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs`` and
+    likewise for contacts and its list (empty without a skin), whose reference pose is
+    ``rotations[t], shifts[t]``.
     """
     coords, frames, master_coords, master_frames, epsilon, face, first, count, normals, spheres = (
         bank
@@ -90,10 +100,15 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
     node_offset, node_count, face_offset, face_count, leaf_eps, radius, extent = meta
     tree_a, tree_b, position_a, orientation_a, position_b, orientation_b = queries
     coarse, leaf, keep_all, ulp, tiny = params
+    skin, slot, cached_rotation, cached_shift, cached_offsets, cached_near = cache
     k = stop - start
     pair_offsets = np.zeros(k + 1, np.int64)
     contact_offsets = np.zeros(k + 1, np.int64)
+    near_offsets = np.zeros(k + 1, np.int64)
+    rotations = np.empty((k, 3, 3))
+    shifts = np.empty((k, 3))
     pairs = np.empty((64, 2), np.int64)
+    near_out = np.empty((64, 2), np.int64)
     points = np.empty((64, 3))
     normals_out = np.empty((64, 3))
     overlaps = np.empty(64)
@@ -130,30 +145,62 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
         f0 = face_offset[ta]
         contact = (face_count[tb], keep_all, normals[f0 : f0 + face_count[ta]], setup)
         stats[:] = 0
-        depth, unfoldings, result = query_kernel(
-            body_a, body_b, (rotation, shift), margin, coarse, leaf, contact, stats, levels[t]
+        reach = skin * (ea + eb)
+        e = slot[q]
+        listed = (
+            skin > 0.0
+            and e >= 0
+            and motion_bound(cached_rotation[e], cached_shift[e], rotation, shift, extent[tb])
+            + margin
+            < reach
         )
+        if listed:
+            near = cached_near[cached_offsets[e] : cached_offsets[e + 1]]
+            result = listed_query(
+                body_a, body_b, (rotation, shift), margin, near, leaf, contact, stats
+            )
+            depth, unfoldings = 0, 0
+            rotations[t], shifts[t] = cached_rotation[e], cached_shift[e]
+        else:
+            inflate = 0.5 * reach if skin > 0.0 else 0.0
+            depth, unfoldings, result, near = query_kernel(
+                body_a,
+                body_b,
+                (rotation, shift),
+                margin,
+                inflate,
+                coarse,
+                leaf,
+                contact,
+                stats,
+                levels[t],
+            )
+            rotations[t], shifts[t] = rotation, shift
         found, pts, nrm, ovl = result
-        p0, c0 = pair_offsets[t], contact_offsets[t]
+        p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
         p1, c1 = p0 + found.shape[0], c0 + pts.shape[0]
+        n1 = n0 + (near.shape[0] if skin > 0.0 else 0)
         pairs = _grow(pairs, p0, p1)
+        near_out = _grow(near_out, n0, n1)
         points, normals_out, overlaps = (
             _grow(points, c0, c1),
             _grow(normals_out, c0, c1),
             _grow(overlaps, c0, c1),
         )
         pairs[p0:p1] = found
+        near_out[n0:n1] = near[: n1 - n0]
         points[c0:c1] = pts
         normals_out[c0:c1] = nrm
         overlaps[c0:c1] = ovl
-        pair_offsets[t + 1], contact_offsets[t + 1] = p1, c1
+        pair_offsets[t + 1], contact_offsets[t + 1], near_offsets[t + 1] = p1, c1, n1
         counts[t, COUNT_DEPTH] = depth
         counts[t, COUNT_UNFOLDINGS] = unfoldings
         counts[t, COUNT_ITERATIVE] = stats[STAT_ITERATIVE]
         counts[t, COUNT_FALLBACKS] = stats[STAT_FALLBACKS]
         counts[t, COUNT_COMPARISONS] = stats[STAT_PAIRS]
         counts[t, COUNT_SPHERES] = stats[STAT_SPHERES]
-    n_pairs, n_contacts = pair_offsets[k], contact_offsets[k]
+        counts[t, COUNT_LISTED] = 1 if listed else 0
+    n_pairs, n_contacts, n_near = pair_offsets[k], contact_offsets[k], near_offsets[k]
     return (
         pair_offsets,
         pairs[:n_pairs],
@@ -161,7 +208,26 @@ def batch_kernel(bank, meta, queries, params, start, stop, counts, levels):
         points[:n_contacts],
         normals_out[:n_contacts],
         overlaps[:n_contacts],
+        near_offsets,
+        near_out[:n_near],
+        rotations,
+        shifts,
     )
+
+
+@njit(**EXACT_JIT)
+def motion_bound(rotation_0, shift_0, rotation, shift, extent_b):
+    """Upper bound on how far any point of B (coordinates within ``extent_b`` in B's
+    frame) moved relative to A between the poses ``x ↦ R₀x + s₀`` and ``x ↦ Rx + s``:
+    ‖R − R₀‖_F·√3·extent + |s − s₀| (the Frobenius norm bounds the spectral one; the
+    differences are taken entry by entry, so small rotations lose no accuracy)."""
+    frobenius = 0.0
+    for i in range(3):
+        for j in range(3):
+            d = rotation[i, j] - rotation_0[i, j]
+            frobenius += d * d
+    d0, d1, d2 = shift[0] - shift_0[0], shift[1] - shift_0[1], shift[2] - shift_0[2]
+    return np.sqrt(frobenius) * SQRT3 * extent_b + np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
 @njit(**JIT)

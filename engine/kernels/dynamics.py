@@ -39,9 +39,10 @@ def contact_forces(bodies, offsets, points, normals, overlaps, state, params, la
 
     ``out = (force, torque, friction_force, friction_torque (n, 3), stiffness (n, 2))``:
     normal (spring and damping) and friction contributions go to separate arrays, so that
-    a Picard iteration can relax them separately; ``stiffness[b]`` receives the sums over
-    b's contacts of ∂F_n/∂δ and of the friction's ∂F_t/∂v_t (for the relaxation's first
-    weight).
+    a Picard iteration can relax them separately; ``stiffness (n, 3)[b]`` receives the sums
+    over b's contacts of ∂F_n/∂δ and of the friction's ∂F_t/∂v_t (for the relaxation's
+    first weight) and of the contact forces' magnitudes |F_n| + |F_t| (the force scale of
+    Picard's convergence test).
 
     ``bodies (k, 2)`` int64: body pair q = (a, b) owns contacts ``offsets[q]:offsets[q + 1]``
     of ``points, normals (c, 3)`` (normals unit, from a to b) and ``overlaps (c,)``.
@@ -104,13 +105,19 @@ def contact_forces(bodies, offsets, points, normals, overlaps, state, params, la
             _apply(force, torque, origins, a, p0, p1, p2, -f_n * n0, -f_n * n1, -f_n * n2)
             stiffness[a, 0] += k_eff
             stiffness[b, 0] += k_eff
+            stiffness[a, 2] += f_n
+            stiffness[b, 2] += f_n
             if mu > 0.0:
-                scale = mu * f_n / np.sqrt(t0 * t0 + t1 * t1 + t2 * t2 + v_slip * v_slip)
+                slip = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2 + v_slip * v_slip)
+                scale = mu * f_n / slip
                 g0, g1, g2 = -scale * t0, -scale * t1, -scale * t2
                 _apply(friction_force, friction_torque, origins, b, p0, p1, p2, g0, g1, g2)
                 _apply(friction_force, friction_torque, origins, a, p0, p1, p2, -g0, -g1, -g2)
                 stiffness[a, 1] += mu * f_n / v_slip  # the steepest (sticking) slope
                 stiffness[b, 1] += mu * f_n / v_slip
+                gross = scale * np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+                stiffness[a, 2] += gross
+                stiffness[b, 2] += gross
     return energy
 
 

@@ -25,8 +25,10 @@ from .triangle_batch import STAT_SPHERES, ZERO, listed_kernel, listed_workspace,
 
 
 @njit(**JIT)
-def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, contact, stats, levels):
-    """Contacts between two posed trees; returns ``(depth, unfoldings, result)``.
+def query_kernel(
+    body_a, body_b, pose, margin, inflate, coarse_params, leaf_params, contact, stats, levels
+):
+    """Contacts between two posed trees; returns ``(depth, unfoldings, result, near)``.
 
     ``body_a = (coords (Na, 9), frames (Na, 14), epsilon (Na,) float64, face,
     first_child, child_count (Na,) int32, spheres (Na, 4) float64)``: A's nodes
@@ -46,7 +48,11 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
 
     ``depth`` is the number of levels, ``unfoldings`` the node pairs unfolded and
     ``result = (pairs, points, normals, overlaps)`` the contacts, as
-    ``contact_kernel`` writes them (trimmed; world frame).
+    ``contact_kernel`` writes them (trimmed; world frame). ``near (m, 2)`` int64 are
+    the leaf node pairs within their ε plus ``2·inflate``: with ``inflate > 0`` the
+    traversal runs with every ε grown by ``inflate`` (bounding spheres too), and the
+    contacts are those of ``near`` at the true ε — a superset list that stays valid
+    while B moves by less than ``2·inflate`` relative to A (see :func:`listed_query`).
     """
     coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
     master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
@@ -65,12 +71,16 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
     eps_b = np.empty(nb, dtype)
     margin_kernel(epsilon_a, face_a, margin, eps_a)
     margin_kernel(epsilon_b, face_b, margin, eps_b)
+    if inflate > 0.0:
+        eps_a += inflate
+        eps_b += inflate
+    reach = margin + 2.0 * inflate  # added to the sum of two bounding radii
     rm = (coords_a, frames_a, coords_b, frames_b)
     buffers = listed_workspace(coords_a)
     found = result_buffers(256, coords_a)
     hits = result_buffers(256, coords_a)
     pruned = ZERO
-    if _apart(spheres_a, ZERO, spheres_b, centres_b, centred, ZERO, rotation, shift, margin):
+    if _apart(spheres_a, ZERO, spheres_b, centres_b, centred, ZERO, rotation, shift, reach):
         front = np.zeros((0, 2), np.int64)
         pruned += 1
     else:
@@ -121,13 +131,13 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
             b0, b1 = (first_b[j], first_b[j] + count_b[j]) if face_b[j] < 0 else (j, j + 1)
             for ca in range(a0, a1):
                 if b1 - b0 > 1 and _apart(
-                    spheres_a, ca, spheres_b, centres_b, centred, j, rotation, shift, margin
+                    spheres_a, ca, spheres_b, centres_b, centred, j, rotation, shift, reach
                 ):
                     pruned += b1 - b0
                     continue
                 for cb in range(b0, b1):
                     if _apart(
-                        spheres_a, ca, spheres_b, centres_b, centred, cb, rotation, shift, margin
+                        spheres_a, ca, spheres_b, centres_b, centred, cb, rotation, shift, reach
                     ):
                         pruned += 1
                         continue
@@ -144,6 +154,56 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
     found = _room(found, ZERO, nf)
     n = listed_kernel(rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, buffers, found, ZERO, stats)
     stats[STAT_SPHERES] += pruned
+    near = np.empty((n, 2), np.int64)
+    near[:, 0] = found[0][:n]
+    near[:, 1] = found[1][:n]
+    if inflate > 0.0:  # the near pairs at their true ε
+        margin_kernel(epsilon_a, face_a, margin, eps_a)
+        margin_kernel(epsilon_b, face_b, margin, eps_b)
+        n = listed_kernel(rm, eps_a, eps_b, near, ZERO, n, leaf_params, buffers, found, ZERO, stats)
+    return depth, unfoldings, _contacts(found, n, face_a, face_b, contact), near
+
+
+@njit(**JIT)
+def listed_query(body_a, body_b, pose, margin, near, leaf_params, contact, stats):
+    """Contacts of the listed leaf node pairs ``near (m, 2)`` only (arguments as in
+    :func:`query_kernel`); returns ``result``. B's listed nodes are moved by the same
+    :func:`~engine.kernels.rigid.move_kernel` as in the traversal, so each pair gives
+    the traversal's bits, and ``result`` equals the traversal's whenever ``near`` holds
+    every leaf pair in contact."""
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
+    rotation, shift = pose
+    dtype = coords_a.dtype
+    nb = master_coords.shape[0]
+    m = near.shape[0]
+    coords_b = np.empty((nb, 9), dtype)
+    frames_b = np.empty((nb, 14), dtype)
+    moved = np.zeros(nb, np.bool_)
+    to_move = np.empty(m, np.int64)
+    new = ZERO
+    for t in range(m):
+        j = near[t, 1]
+        if not moved[j]:
+            moved[j] = True
+            to_move[new] = j
+            new += 1
+    move_kernel(master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b)
+    eps_a = np.empty(epsilon_a.shape[0], dtype)
+    eps_b = np.empty(nb, dtype)
+    margin_kernel(epsilon_a, face_a, margin, eps_a)
+    margin_kernel(epsilon_b, face_b, margin, eps_b)
+    rm = (coords_a, frames_a, coords_b, frames_b)
+    found = result_buffers(max(m, 1), coords_a)
+    n = listed_kernel(
+        rm, eps_a, eps_b, near, ZERO, m, leaf_params, listed_workspace(coords_a), found, ZERO, stats
+    )
+    return _contacts(found, n, face_a, face_b, contact)
+
+
+@njit(**JIT)
+def _contacts(found, n, face_a, face_b, contact):
+    """The merged contacts of the first ``n`` rows of ``found`` (trimmed; world frame)."""
     n_faces_b, keep_all, normals_a, setup = contact
     result = (
         np.empty((n, 2), np.int64),
@@ -155,7 +215,7 @@ def query_kernel(body_a, body_b, pose, margin, coarse_params, leaf_params, conta
     count, k = contact_kernel(
         found, n, face_a, face_b, n_faces_b, keep_all, normals_a, setup, result
     )
-    return depth, unfoldings, (pairs[:count], points[:k], normals[:k], overlaps[:k])
+    return pairs[:count], points[:k], normals[:k], overlaps[:k]
 
 
 @njit(**INLINE)

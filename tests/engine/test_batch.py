@@ -120,3 +120,68 @@ def test_batch_rejects_malformed_queries(trees):
     with pytest.raises(InvalidArgumentError, match="at least one tree"):
         TreeBank([])
     assert find_contacts_batch([]) == []
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_pair_cache_gives_the_traversal_bits_while_bodies_move(trees, precision):
+    """A random walk of many body pairs through contact: with the cache's lists (and
+    their renewals) every step's contacts equal a fresh traversal's, bit for bit."""
+    from engine import PairCache
+
+    bank = TreeBank(trees, precision)
+    rng = np.random.default_rng(7)
+    queries = random_queries(trees, 40, seed=3)
+    index = {id(t): i for i, t in enumerate(trees)}
+    ta = np.array([index[id(q[0])] for q in queries])
+    tb = np.array([index[id(q[2])] for q in queries])
+    pa = np.array([q[1].position for q in queries])
+    qa = np.array([q[1].orientation for q in queries])
+    pb = np.array([q[3].position for q in queries])
+    qb = np.array([q[3].orientation for q in queries])
+    cache = PairCache(skin=0.5)
+    keys = np.arange(len(queries)) * 3 + 1
+    listed = rebuilt = touching = 0
+    for _ in range(60):
+        got = bank.find_contacts(ta, pa, qa, tb, pb, qb, cache=cache, keys=keys, threads=2)
+        want = bank.find_contacts(ta, pa, qa, tb, pb, qb, threads=2)
+        for name in ("pair_offsets", "pairs", "contact_offsets", "points", "normals", "overlaps"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+        served = got.counts[:, 6]
+        listed += int(served.sum())
+        rebuilt += int((1 - served).sum())
+        touching += int((np.diff(got.pair_offsets) > 0).sum())
+        # small steps: B drifts and turns a little relative to A
+        pb = pb + rng.normal(scale=0.004, size=pb.shape)
+        turn = np.concatenate(
+            [np.ones((len(qb), 1)), rng.normal(scale=0.002, size=(len(qb), 3))], 1
+        )
+        qb = np.array([_quat_mul(q, t / np.linalg.norm(t)) for q, t in zip(qb, turn, strict=True)])
+    assert listed > 0 and rebuilt > len(queries) and touching > 0
+    assert len(cache) == len(queries) and np.array_equal(cache.keys, np.sort(keys))
+
+
+def _quat_mul(p, q):
+    w1, x1, y1, z1 = p
+    w2, x2, y2, z2 = q
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def test_pair_cache_rejects_bad_keys_and_skins(trees):
+    from engine import PairCache
+
+    bank = TreeBank(trees)
+    one = (np.zeros(2, int), np.zeros((2, 3)), np.tile([1.0, 0, 0, 0], (2, 1)))
+    args = (one[0], one[1], one[2], one[0], one[1] + 5.0, one[2])
+    with pytest.raises(InvalidArgumentError, match="distinct"):
+        bank.find_contacts(*args, cache=PairCache(), keys=np.array([1, 1]))
+    with pytest.raises(InvalidArgumentError, match="keys must be 2 integers"):
+        bank.find_contacts(*args, cache=PairCache(), keys=np.array([1.5, 2.5]))
+    with pytest.raises(InvalidArgumentError, match="skin"):
+        PairCache(skin=-1.0)

@@ -130,3 +130,64 @@ def test_the_dropped_sphere_starts_above_the_tilted_plane():
     assert height == pytest.approx(0.5 + 0.02 + 0.1)
     first = scene.step(1e-3)
     assert first.contacts == 0  # it falls freely first
+
+
+def test_the_pair_cache_changes_no_bit_of_a_trajectory():
+    """Stepping with the pair cache's lists gives exactly the trajectory of searching every
+    configuration from the roots; a resting contact is then served from the lists."""
+    runs = []
+    for skin in (0.0, 0.5):
+        scene = scenarios.particle_on_plane(triangles=320)
+        scene.pair_cache.skin = skin
+        listed = 0
+        for _ in range(120):
+            listed += scene.step(2e-3).listed
+        runs.append((scene.state, listed))
+    (plain, none), (cached, some) = runs
+    assert none == 0 and some > 0
+    for name in ("positions", "orientations", "velocities", "angular_velocities"):
+        np.testing.assert_array_equal(getattr(plain, name), getattr(cached, name))
+
+
+def test_a_converged_step_hands_its_last_evaluation_to_the_next():
+    scene = scenarios.particle_particle(triangles=320, gap=0.005)
+    stats = [scene.step(1e-3) for _ in range(20)]
+    assert stats[0].evaluations == stats[0].picard_iterations  # nothing to reuse yet
+    later = stats[1:]
+    assert all(s.converged for s in later)
+    assert all(s.evaluations == s.picard_iterations - 1 for s in later)
+    # anything the forces depend on invalidates it
+    scene.set_state(velocities=scene.velocities * 0.5)
+    after = scene.step(1e-3)
+    assert after.evaluations == after.picard_iterations
+
+
+def test_multiscale_fronts_are_warm_started_across_steps():
+    scene = scenarios.particle_particle(triangles=320, gap=0.03, scheme="multiscale")
+    first = scene.step(1e-3)
+    while first.unfoldings == 0:  # until the fronts first leave the roots
+        first = scene.step(1e-3)
+    assert first.converged
+    front = scene.multiscale.fronts[(0, 1)]
+    size = len(front.nodes)
+    second = scene.step(1e-3)
+    # the step starts from the front the last one ended with, not from the roots
+    assert second.converged and second.unfoldings < first.unfoldings
+    assert scene.multiscale.fronts[(0, 1)] is front and len(front.nodes) >= size // 2
+    # once apart, the pair's front is dropped
+    scene.set_state(positions=scene.positions + np.array([[-5.0, 0, 0], [5.0, 0, 0]]))
+    scene.step(1e-3)
+    scene.step(1e-3)
+    assert (0, 1) not in scene.multiscale.fronts
+
+
+def test_a_randomly_oriented_grid_touches_every_face_neighbour():
+    scene = scenarios.sphere_grid(shape=(2, 2, 1), orientations="random", seed=3)
+    np.testing.assert_allclose(np.linalg.norm(scene.orientations, axis=1), 1.0, atol=1e-12)
+    assert len(np.unique(scene.orientations.round(6), axis=0)) == 4
+    found = scene.contacts(scene.positions, scene.orientations)
+    per_pair = np.diff(found.offsets)
+    assert len(found.bodies) == 4 and (per_pair > 0).all()  # face neighbours, all touching
+    assert (found.overlaps <= 0.02).all()
+    with pytest.raises(InvalidArgumentError, match="orientations"):
+        scenarios.sphere_grid(shape=(1, 1, 2), orientations="tilted")
