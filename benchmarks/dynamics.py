@@ -47,6 +47,7 @@ sys.path.insert(0, str(ROOT))
 
 import engine  # noqa: E402
 from engine import scenarios  # noqa: E402
+from engine.scene import SEARCH_COUNTERS  # noqa: E402
 from engine.tree import _ARRAYS as TREE_ARRAYS  # noqa: E402
 
 OUT = ROOT / "bench-results"
@@ -114,16 +115,7 @@ ISSUE_TARGETS = {
     "grid_geometry_memory_mib": 200.0,
 }
 
-COUNTERS = (
-    "comparisons",
-    "iterative",
-    "fallbacks",
-    "sphere_pruned",
-    "unfoldings",
-    "folds",
-    "evaluations",
-    "listed",
-)
+COUNTERS = (*SEARCH_COUNTERS, "evaluations")
 
 
 # ---------------------------------------------------------------- helpers

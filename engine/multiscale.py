@@ -88,22 +88,11 @@ class MultiscaleSearch:
             front.veto.clear()
 
     def __call__(self, positions, orientations):
-        from .scene import Contacts
+        from .scene import SEARCH_COUNTERS, Contacts
 
         scene = self.scene
         origins, pairs = scene.configuration(positions, orientations)
-        counters = dict.fromkeys(
-            (
-                "comparisons",
-                "iterative",
-                "fallbacks",
-                "sphere_pruned",
-                "unfoldings",
-                "folds",
-                "listed",
-            ),
-            0,
-        )
+        counters = dict.fromkeys(SEARCH_COUNTERS, 0)
         leaf_rows, surrogate_rows = [], []
         triangle_pairs, changed = 0, False
         for a, b in pairs.tolist():

@@ -42,6 +42,16 @@ from .tree import SurrogateTree, build_tree
 __all__ = ["SCHEMES", "Scene", "SceneState"]
 
 SCHEMES = ("explicit", "implicit", "implicit-surrogate", "multiscale")
+SEARCH_COUNTERS = (
+    "comparisons",
+    "iterative",
+    "fallbacks",
+    "sphere_pruned",
+    "unfoldings",
+    "folds",
+    "listed",
+)
+"""The search counters summed over a configuration's body pairs (:class:`Contacts`)."""
 DEFAULT_RELATIVE_EPSILON = 0.01
 """A body's ε when not given: this fraction of its mesh's diameter (DESIGN §5), taken as
 twice the largest distance of a vertex from the vertices' mean (rotation invariant; 1 for
@@ -390,18 +400,7 @@ class Scene:
     def contacts(self, positions, orientations, hierarchy: bool = True) -> Contacts:
         """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``."""
         origins, pairs = self.configuration(positions, orientations)
-        counters = dict.fromkeys(
-            (
-                "comparisons",
-                "iterative",
-                "fallbacks",
-                "sphere_pruned",
-                "unfoldings",
-                "folds",
-                "listed",
-            ),
-            0,
-        )
+        counters = dict.fromkeys(SEARCH_COUNTERS, 0)
         if hierarchy:
             batch = self.bank.find_contacts(
                 self.tree_index[pairs[:, 0]],
