@@ -154,18 +154,27 @@ class PairCache:
     def _arrays(self, slots: np.ndarray) -> tuple:
         return (self.skin, slots, self.rotations, self.shifts, self.offsets, self.near)
 
-    def _replace(self, keys: np.ndarray, batch: tuple) -> None:
+    def _replace(self, keys: np.ndarray, slots: np.ndarray, kept: np.ndarray, batch) -> None:
+        """Hold exactly the pairs ``keys (k,)``: entry ``slots[q]`` where ``kept[q]`` (the
+        query used its list, which stays valid), else the query's new list in ``batch``."""
         near_offsets, near, rotations, shifts = batch
+        if kept.all() and np.array_equal(keys, self.keys):
+            return  # the same pairs, every list kept: nothing to copy
         order = np.argsort(keys, kind="stable")
-        sizes = np.diff(near_offsets)[order]
+        slots, kept = slots[order], kept[order]
+        fresh = np.diff(near_offsets)[order]
+        sizes = np.where(kept, self.offsets[slots + 1] - self.offsets[slots], fresh)
+        offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        source = np.where(kept, self.offsets[slots], near_offsets[:-1][order])
+        rows = np.repeat(source - offsets[:-1], sizes) + np.arange(int(offsets[-1]))
+        old = np.repeat(kept, sizes)
+        lists = np.empty((int(offsets[-1]), 2), np.int64)
+        lists[old] = self.near[rows[old]]
+        lists[~old] = near[rows[~old]]
         self.keys = np.ascontiguousarray(keys[order], np.int64)
         self.rotations = rotations[order]
         self.shifts = shifts[order]
-        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-        rows = np.repeat(near_offsets[:-1][order] - self.offsets[:-1], sizes) + np.arange(
-            int(self.offsets[-1])
-        )
-        self.near = near[rows]
+        self.offsets, self.near = offsets, lists
 
 
 _NO_CACHE = (
@@ -278,7 +287,8 @@ class TreeBank:
     def _run(self, queries: tuple, kernel: str, threads: int | None, cache=None, keys=None):
         """The query arrays validated (see :meth:`find_contacts`)."""
         k = len(queries[0])
-        arrays = _NO_CACHE if cache is None else cache._arrays(cache._slots(keys))
+        slots = None if cache is None else cache._slots(keys)
+        arrays = _NO_CACHE if cache is None else cache._arrays(slots)
         coarse, leaf = query_parameters(kernel, self.dtype)
         params = (coarse, leaf, kernel != "iterative", ULP[self.dtype], TINY)
         counts = np.zeros((k, kb.N_COUNTS), np.int64)
@@ -310,7 +320,7 @@ class TreeBank:
             parts = [f.result() for f in futures]
         batch = _join(parts, counts, levels)
         if cache is not None:
-            cache._replace(keys, _join_lists(parts))
+            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, _join_lists(parts))
         return batch
 
 

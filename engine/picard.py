@@ -341,12 +341,11 @@ def _advance(scene, start, force, torque, dt: float, out) -> None:
 def _summary(scene, contacts, counters, energy, converged: bool, iterations: int) -> dict:
     totals = {k: sum(c[k] for c in counters) for k in counters[0] if k != "triangle_pairs"}
     eps = scene.epsilon
-    reach = eps[contacts.bodies[:, 0]] + eps[contacts.bodies[:, 1]] if len(contacts.bodies) else []
     worst = 0.0
-    for q in range(len(contacts.bodies)):
-        rows = contacts.overlaps[contacts.offsets[q] : contacts.offsets[q + 1]]
-        if len(rows):
-            worst = max(worst, float(rows.max() / reach[q]))
+    if len(contacts.points):  # each overlap relative to its pair's reach ε_a + ε_b
+        pair = np.repeat(np.arange(len(contacts.bodies)), np.diff(contacts.offsets))
+        reach = eps[contacts.bodies[pair, 0]] + eps[contacts.bodies[pair, 1]]
+        worst = float((contacts.overlaps / reach).max())
     return {
         "converged": bool(converged),
         "picard_iterations": iterations,

@@ -91,7 +91,8 @@ def batch_kernel(bank, meta, queries, params, cache, start, stop, counts, levels
     (pairs evaluated per level). Returns ``(pair_offsets, pairs, contact_offsets,
     points, normals, overlaps, near_offsets, near, rotations, shifts)``: query
     ``start + t`` owns rows ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs`` and
-    likewise for contacts and its list (empty without a skin), whose reference pose is
+    likewise for contacts and its new list (empty without a skin, and for a query that
+    used its cached list: that list stays valid as it is), whose reference pose is
     ``rotations[t], shifts[t]``.
     """
     coords, frames, master_coords, master_frames, epsilon, face, first, count, normals, spheres = (
@@ -179,7 +180,7 @@ def batch_kernel(bank, meta, queries, params, cache, start, stop, counts, levels
         found, pts, nrm, ovl = result
         p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
         p1, c1 = p0 + found.shape[0], c0 + pts.shape[0]
-        n1 = n0 + (near.shape[0] if skin > 0.0 else 0)
+        n1 = n0 + (near.shape[0] if skin > 0.0 and not listed else 0)  # a kept list stays put
         pairs = _grow(pairs, p0, p1)
         near_out = _grow(near_out, n0, n1)
         points, normals_out, overlaps = (

@@ -181,6 +181,28 @@ def test_multiscale_fronts_are_warm_started_across_steps():
     assert (0, 1) not in scene.multiscale.fronts
 
 
+def test_a_vertex_oriented_grid_meets_vertex_to_vertex_on_the_lines_of_centres():
+    scene = scenarios.sphere_grid(shape=(2, 2, 2), orientations="vertices")
+    q = scene.orientations
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+    assert (q == q[0]).all() and abs(q[0, 0]) < 1.0  # one common, non-trivial rotation
+    found = scene.contacts(scene.positions, scene.orientations)
+    assert len(found.bodies) == 12 and (np.diff(found.offsets) == 1).all()
+    # each face-neighbour pair: one merged contact at the midpoint of the centres, its
+    # halos overlapping by 0.02 - 0.0195, as in the aligned grid but away from the poles
+    a, b = found.bodies[:, 0], found.bodies[:, 1]
+    midpoints = 0.5 * (scene.positions[a] + scene.positions[b])
+    np.testing.assert_allclose(found.points, midpoints, atol=1e-9)
+    np.testing.assert_allclose(found.overlaps, 0.0005, atol=1e-9)
+    aligned = scenarios.sphere_grid(shape=(1, 1, 2))
+    poles = aligned.contacts(aligned.positions, aligned.orientations).counters
+    generic = scenarios.sphere_grid(shape=(1, 1, 2), orientations="vertices")
+    ordinary = generic.contacts(generic.positions, generic.orientations).counters
+    assert ordinary["comparisons"] < poles["comparisons"] / 4  # no 36-triangle fans
+    with pytest.raises(InvalidArgumentError, match="vertices"):
+        scenarios.sphere_grid(shape=(1, 1, 2), triangles=140, orientations="vertices")
+
+
 def test_a_randomly_oriented_grid_touches_every_face_neighbour():
     scene = scenarios.sphere_grid(shape=(2, 2, 1), orientations="random", seed=3)
     np.testing.assert_allclose(np.linalg.norm(scene.orientations, axis=1), 1.0, atol=1e-12)
