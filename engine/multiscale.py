@@ -35,16 +35,16 @@ from .contacts import (
     TINY,
     ULP,
     _face_normals,
-    _moved,
+    _master,
     _node_set,
     _structure,
     extent,
+    query_parameters,
     spheres,
 )
-from .distance import TriangleSet, triangle_contacts
+from .kernels import triangle_batch as tb_kernels
 from .kernels.batch import query_margin, relative_pose
-from .kernels.contact_merge import contact_kernel
-from .kernels.rigid import margin_kernel
+from .kernels.traversal import front_kernel
 
 __all__ = ["MultiscaleSearch"]
 
@@ -121,24 +121,9 @@ class MultiscaleSearch:
             origins[a], orientations[a], origins[b], orientations[b]
         )
         margin = query_margin(extent(ta), extent(tb), shift, ULP[dtype])
-        nodes = front.nodes
-        # bounding spheres first (B's centres moved into A's frame)
-        sa, sb = spheres(ta), spheres(tb)
-        centre_b = sb[nodes[:, 1], :3] @ rotation.T + shift
-        gap = np.linalg.norm(sa[nodes[:, 0], :3] - centre_b, axis=1)
-        apart = gap > sa[nodes[:, 0], 3] + sb[nodes[:, 1], 3] + margin
-        counters["sphere_pruned"] += int(apart.sum())
-        face_a, face_b = _structure(ta)[1], _structure(tb)[1]
-        is_leaf = (face_a[nodes[:, 0]] >= 0) & (face_b[nodes[:, 1]] >= 0)
-        # B's nodes of the front and of its entries' parents (which a fold evaluates)
-        reached = np.concatenate([nodes[:, 1], front.parents[front.parents[:, 1] >= 0, 1]])
-        coords, frames = _moved(tb, (rotation, shift), np.unique(reached), dtype)
-        set_a = _node_set(ta, scene.precision, False)
-        set_b = TriangleSet.prepared(coords.T, frames.T)
-        eps_a, eps_b = np.empty(len(ta), dtype), np.empty(len(tb), dtype)
-        margin_kernel(*_structure(ta)[:2], margin, eps_a)
-        margin_kernel(*_structure(tb)[:2], margin, eps_b)
-        status = np.zeros(len(nodes), np.int8)  # 0: certainly apart
+        set_a, master = _node_set(ta, scene.precision, False), _master(tb)
+        body_a = (set_a.coords_rm, set_a.frames_rm, *_structure(ta), spheres(ta))
+        body_b = (master.coords_rm, master.frames_rm, *_structure(tb), spheres(tb))
         setup = (
             ta.leaf_epsilon,
             tb.leaf_epsilon,
@@ -147,91 +132,35 @@ class MultiscaleSearch:
             rot_a,
             origins[a].copy(),
         )
-        leaf, surrogate = _empty(), _empty()
-        count = 0
-        for mask, kernel, leaves in (
-            (is_leaf, scene.kernel, True),
-            (~is_leaf, _surrogate_kernel(scene), False),
-        ):
-            listed = np.flatnonzero(mask & ~apart)
-            if not len(listed):
-                continue
-            res = triangle_contacts(
-                set_a,
-                set_b,
-                eps_a,
-                eps_b,
-                pairs=nodes[listed],
-                kernel=kernel,
-                precision=scene.precision,
-                threads=1,
+        contact = (len(_face_normals(tb)), scene.kernel != "iterative", _face_normals(ta), setup)
+        coarse, leaf = query_parameters(scene.kernel, dtype)
+        stats = np.zeros(tb_kernels.N_STATS, np.int64)
+
+        def evaluate(nodes: np.ndarray):
+            """(status (g,) int8, leaf contacts, surrogate hits) of node pairs ``nodes``."""
+            return front_kernel(
+                body_a, body_b, (rotation, shift), margin, nodes, coarse, leaf, contact, stats
             )
-            counters["comparisons"] += res.stats.pairs
-            counters["iterative"] += res.stats.iterative
-            counters["fallbacks"] += res.stats.fallbacks
-            found_rows = listed[_rows_of(nodes[listed], res.pairs)]
-            status[found_rows] = res.status
-            if leaves:
-                out = (
-                    np.empty((len(res), 2), np.int64),
-                    np.empty((len(res), 3)),
-                    np.empty((len(res), 3)),
-                    np.empty(len(res)),
-                )
-                found = (
-                    np.ascontiguousarray(res.pairs[:, 0]),
-                    np.ascontiguousarray(res.pairs[:, 1]),
-                    res.distance,
-                    np.ascontiguousarray(res.point_a.T),
-                    np.ascontiguousarray(res.point_b.T),
-                    res.status,
-                )
-                m, k = contact_kernel(
-                    found,
-                    len(res),
-                    face_a,
-                    face_b,
-                    len(_face_normals(tb)),
-                    kernel != "iterative",
-                    _face_normals(ta),
-                    setup,
-                    out,
-                )
-                leaf = (out[1][:k], out[2][:k], out[3][:k])
-                count = m
-            else:
-                hit = res.status == 1
-                surrogate = _surrogate_contacts(
-                    ta, tb, res, hit, rot_a, origins[a], scene.centers[a]
-                )
+
+        nodes = front.nodes
+        status, (found, points, normals, overlaps), hits = evaluate(nodes)
+        leaf_contacts = (points, normals, overlaps)
+        surrogate = _surrogate_contacts(ta, tb, hits, rot_a, origins[a], scene.centers[a])
+        face_a, face_b = _structure(ta)[1], _structure(tb)[1]
+        is_leaf = (face_a[nodes[:, 0]] >= 0) & (face_b[nodes[:, 1]] >= 0)
         front.quiet = status == 0
 
         def certainly_apart(pairs: np.ndarray) -> np.ndarray:
             """(g,) bool: node pairs certainly apart at this configuration."""
-            centre = sb[pairs[:, 1], :3] @ rotation.T + shift
-            gap = np.linalg.norm(sa[pairs[:, 0], :3] - centre, axis=1)
-            apart = gap > sa[pairs[:, 0], 3] + sb[pairs[:, 1], 3] + margin
-            rest = np.flatnonzero(~apart)
-            if len(rest):
-                res = triangle_contacts(
-                    set_a,
-                    set_b,
-                    eps_a,
-                    eps_b,
-                    pairs=pairs[rest],
-                    kernel=_surrogate_kernel(scene),
-                    precision=scene.precision,
-                    threads=1,
-                )
-                counters["comparisons"] += res.stats.pairs
-                counters["iterative"] += res.stats.iterative
-                apart[rest] = True
-                apart[rest[_rows_of(pairs[rest], res.pairs)]] = False
-            return apart
+            return evaluate(np.ascontiguousarray(pairs, np.int64))[0] == 0
 
         unfolded = self._widen(front, ta, tb, status, is_leaf)
         folded = self._narrow(front, ta, tb, certainly_apart)
-        return leaf, surrogate, unfolded, folded, count
+        counters["comparisons"] += int(stats[tb_kernels.STAT_PAIRS])
+        counters["iterative"] += int(stats[tb_kernels.STAT_ITERATIVE])
+        counters["fallbacks"] += int(stats[tb_kernels.STAT_FALLBACKS])
+        counters["sphere_pruned"] += int(stats[tb_kernels.STAT_SPHERES])
+        return leaf_contacts, surrogate, unfolded, folded, len(found)
 
     def _widen(self, front, ta, tb, status, is_leaf) -> int:
         """Replace surrogate entries in contact or not converged by their child pairs."""
@@ -298,34 +227,24 @@ def _fanout(tree, nodes: np.ndarray) -> np.ndarray:
     return np.where(tree.face[nodes] >= 0, 1, tree.child_count[nodes]).astype(np.int64)
 
 
-def _rows_of(nodes: np.ndarray, found: np.ndarray) -> np.ndarray:
-    """Row of each ``found`` pair within ``nodes`` (pairs of non-negative ints)."""
-    scale = int(max(nodes.max(initial=0), found.max(initial=0))) + 1
-    keys = nodes[:, 0] * scale + nodes[:, 1]
-    order = np.argsort(keys)
-    return order[np.searchsorted(keys[order], found[:, 0] * scale + found[:, 1])]
-
-
-def _surrogate_kernel(scene) -> str:
-    return "exact" if scene.kernel == "exact" else "iterative"
-
-
-def _surrogate_contacts(ta, tb, res, hit, rot_a, origin_a, center_a):
-    """Damped contacts of surrogate pairs in contact (world frame); where the two closest
-    points coincide the normal points away from A's centre of mass (``center_a``, mesh
-    frame)."""
+def _surrogate_contacts(ta, tb, hits, rot_a, origin_a, center_a):
+    """Damped contacts of the surrogate pairs in contact among ``hits`` (the
+    :func:`~engine.kernels.traversal.front_kernel` layout), in the world frame; where the
+    two closest points coincide the normal points away from A's centre of mass
+    (``center_a``, mesh frame)."""
+    hit = hits[5] == 1
     if not hit.any():
         return _empty()
-    i, j = res.pairs[hit, 0], res.pairs[hit, 1]
+    i, j = hits[0][hit], hits[1][hit]
     ei, ej = ta.epsilon[i], tb.epsilon[j]
-    p, q = res.point_a[hit].astype(float), res.point_b[hit].astype(float)
+    p, q = hits[3][:, hit].T.astype(float), hits[4][:, hit].T.astype(float)
     gap = q - p
     length = np.linalg.norm(gap, axis=1)
     point = p + (ei / (ei + ej))[:, None] * gap
     direction = np.where((length > 0)[:, None], gap, point - center_a)
     normal = direction / np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
     rho = (ta.leaf_epsilon + tb.leaf_epsilon) / (ei + ej)
-    overlap = np.clip(ei + ej - res.distance[hit], 0.0, None) * rho**2
+    overlap = np.clip(ei + ej - hits[2][hit], 0.0, None) * rho**2
     return point @ rot_a.T + origin_a, normal @ rot_a.T, overlap
 
 

@@ -202,6 +202,78 @@ def listed_query(body_a, body_b, pose, margin, near, leaf_params, contact, stats
 
 
 @njit(**JIT)
+def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params, contact, stats):
+    """One evaluation of a multiscale front: the node pairs ``nodes (m, 2)`` (int64),
+    each as the traversal evaluates it (bounding spheres first; leaf pairs with the
+    leaf parameters, pairs with a surrogate with the surrogate ones); arguments as in
+    :func:`query_kernel`. Returns ``(status, result, hits)``: ``status (m,)`` int8 of
+    each entry (``NO_CONTACT`` when its spheres are apart), ``result`` the merged
+    contacts of the leaf entries and ``hits`` the surrogate entries in contact or not
+    converged, as :func:`~engine.kernels.triangle_batch.result_buffers` trimmed to them
+    (node pairs, distance, points in A's frame, status)."""
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
+    rotation, shift = pose
+    dtype = coords_a.dtype
+    nb = master_coords.shape[0]
+    m = nodes.shape[0]
+    centres_b = np.empty((nb, 3))
+    centred = np.zeros(nb, np.bool_)
+    moved = np.zeros(nb, np.bool_)
+    to_move = np.empty(m, np.int64)
+    leaves = np.empty((m, 2), np.int64)
+    coarse = np.empty((m, 2), np.int64)
+    new, nl, nc, pruned = ZERO, ZERO, ZERO, ZERO
+    for t in range(m):
+        i, j = nodes[t, 0], nodes[t, 1]
+        if _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, margin):
+            pruned += 1
+            continue
+        if not moved[j]:
+            moved[j] = True
+            to_move[new] = j
+            new += 1
+        if face_a[i] >= 0 and face_b[j] >= 0:
+            leaves[nl, 0], leaves[nl, 1] = i, j
+            nl += 1
+        else:
+            coarse[nc, 0], coarse[nc, 1] = i, j
+            nc += 1
+    stats[STAT_SPHERES] += pruned
+    coords_b = np.empty((nb, 9), dtype)
+    frames_b = np.empty((nb, 14), dtype)
+    move_kernel(master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b)
+    eps_a = np.empty(epsilon_a.shape[0], dtype)
+    eps_b = np.empty(nb, dtype)
+    margin_kernel(epsilon_a, face_a, margin, eps_a)
+    margin_kernel(epsilon_b, face_b, margin, eps_b)
+    rm = (coords_a, frames_a, coords_b, frames_b)
+    buffers = listed_workspace(coords_a)
+    hits = result_buffers(max(nc, 1), coords_a)
+    h = listed_kernel(rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, buffers, hits, ZERO, stats)
+    found = result_buffers(max(nl, 1), coords_a)
+    n = listed_kernel(rm, eps_a, eps_b, leaves, ZERO, nl, leaf_params, buffers, found, ZERO, stats)
+    # each reported pair's status onto its entry (entries are distinct node pairs)
+    keys = nodes[:, 0] * nb + nodes[:, 1]
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    status = np.zeros(m, np.int8)
+    for out, k in ((hits, h), (found, n)):
+        for r in range(k):
+            at = np.searchsorted(sorted_keys, out[0][r] * nb + out[1][r])
+            status[order[at]] = out[5][r]
+    trimmed = (
+        hits[0][:h].copy(),
+        hits[1][:h].copy(),
+        hits[2][:h].copy(),
+        hits[3][:, :h].copy(),
+        hits[4][:, :h].copy(),
+        hits[5][:h].copy(),
+    )
+    return status, _contacts(found, n, face_a, face_b, contact), trimmed
+
+
+@njit(**JIT)
 def _contacts(found, n, face_a, face_b, contact):
     """The merged contacts of the first ``n`` rows of ``found`` (trimmed; world frame)."""
     n_faces_b, keep_all, normals_a, setup = contact
