@@ -63,7 +63,8 @@ class _Front:
 
 class MultiscaleSearch:
     """Contacts of a scene's configurations with per-pair fronts kept between calls.
-    Calling it returns ``(leaf contacts, surrogate contacts, changed)``.
+    Calling it returns ``(leaf contacts, surrogate contacts, changed)``; the surrogate
+    contacts are None when no surrogate pair is in contact.
 
     Fronts are **warm-started across time steps** (the paper's stated future work): a
     step starts from the fronts the previous step ended with, not from the roots; only
@@ -81,6 +82,8 @@ class MultiscaleSearch:
     def begin_step(self) -> None:
         """Forget the veto memory and fold history (they live for one step) and the
         fronts of pairs the last step never evaluated."""
+        if not self.fronts and not self.seen:
+            return
         self.fronts = {k: f for k, f in self.fronts.items() if k in self.seen}
         self.seen = set()
         for front in self.fronts.values():
@@ -107,9 +110,10 @@ class MultiscaleSearch:
             counters["unfoldings"] += unfolded
             counters["folds"] += folded
         counters["triangle_pairs"] = triangle_pairs
+        damped = any(len(r[2]) for r in surrogate_rows)
         return (
             _stack(Contacts, pairs, leaf_rows, counters),
-            _stack(Contacts, pairs, surrogate_rows, dict(counters)),
+            _stack(Contacts, pairs, surrogate_rows, dict(counters)) if damped else None,
             changed,
         )
 
@@ -253,9 +257,8 @@ def _empty():
 
 
 def _stack(cls, pairs, rows, counters):
-    offsets = np.concatenate([[0], np.cumsum([len(r[2]) for r in rows])]).astype(np.int64)
-
-    def cat(k):
-        return np.concatenate([r[k] for r in rows]) if rows else _empty()[k]
-
-    return cls(pairs, offsets, cat(0), cat(1), cat(2), counters)
+    offsets = np.zeros(len(rows) + 1, np.int64)
+    np.cumsum([len(r[2]) for r in rows], out=offsets[1:])
+    if not rows:
+        return cls(pairs, offsets, *_empty(), counters)
+    return cls(pairs, offsets, *(np.concatenate([r[k] for r in rows]) for k in range(3)), counters)
