@@ -59,6 +59,7 @@ class _Front:
         self.up: dict[tuple[int, int], tuple[int, int]] = {}
         self.folded: set[tuple[int, int]] = set()
         self.veto: set[tuple[int, int]] = set()
+        self.groups: tuple | None = None  # sibling groups of the entries (see _narrow)
 
 
 class MultiscaleSearch:
@@ -189,6 +190,7 @@ class MultiscaleSearch:
         keep[grow] = False
         front.nodes = np.concatenate([front.nodes[keep], kids])
         front.parents = np.concatenate([front.parents[keep], grown[group]])
+        front.groups = None
         front.quiet = np.concatenate([front.quiet[keep], np.zeros(len(kids), bool)])
         return len(grow)
 
@@ -197,18 +199,22 @@ class MultiscaleSearch:
         parent — if the parent itself is certainly apart (checked now: a parent that would
         report contact would only unfold again, the cycle the paper's veto memory breaks
         after the fact) and is not vetoed (it came back after an earlier fold)."""
-        parents = front.parents
-        inner = np.flatnonzero(parents[:, 0] >= 0)
-        if not len(inner):
+        if front.groups is None:  # kept until the front changes (only quiet flags vary)
+            parents = front.parents
+            inner = np.flatnonzero(parents[:, 0] >= 0)
+            width = len(tb)
+            keys = parents[inner, 0] * width + parents[inner, 1]
+            unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+            pa, pb = unique // width, unique % width
+            complete = counts == _fanout(ta, pa) * _fanout(tb, pb)
+            front.groups = (inner, keys, unique, inverse, complete, pa, pb, width)
+        inner, keys, unique, inverse, complete, pa, pb, width = front.groups
+        if not complete.any():
             return 0
-        width = len(tb)
-        keys = parents[inner, 0] * width + parents[inner, 1]
-        unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-        pa, pb = unique // width, unique % width
-        size = _fanout(ta, pa) * _fanout(tb, pb)
         restless = np.bincount(inverse, weights=~front.quiet[inner], minlength=len(unique))
-        vetoed = np.isin(unique, [i * width + j for i, j in front.veto])
-        candidate = (counts == size) & (restless == 0) & ~vetoed
+        candidate = complete & (restless == 0)
+        if front.veto and candidate.any():
+            candidate &= ~np.isin(unique, [i * width + j for i, j in front.veto])
         if not candidate.any():
             return 0
         pairs = np.stack([pa[candidate], pb[candidate]], axis=1)
@@ -219,6 +225,7 @@ class MultiscaleSearch:
         front.folded.update(add)
         keep = np.ones(len(front.nodes), bool)
         keep[inner[np.isin(keys, fold)]] = False
+        front.groups = None
         front.nodes = np.concatenate([front.nodes[keep], np.array(add, np.int64)])
         ups = np.array([front.up.get(k, (-1, -1)) for k in add], np.int64)
         front.parents = np.concatenate([front.parents[keep], ups])
