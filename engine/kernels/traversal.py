@@ -173,12 +173,8 @@ def listed_query(body_a, body_b, pose, margin, near, leaf_params, contact, stats
     every leaf pair in contact."""
     coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
     master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
-    rotation, shift = pose
-    dtype = coords_a.dtype
     nb = master_coords.shape[0]
     m = near.shape[0]
-    coords_b = np.empty((nb, 9), dtype)
-    frames_b = np.empty((nb, 14), dtype)
     moved = np.zeros(nb, np.bool_)
     to_move = np.empty(m, np.int64)
     new = ZERO
@@ -188,12 +184,7 @@ def listed_query(body_a, body_b, pose, margin, near, leaf_params, contact, stats
             moved[j] = True
             to_move[new] = j
             new += 1
-    move_kernel(master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b)
-    eps_a = np.empty(epsilon_a.shape[0], dtype)
-    eps_b = np.empty(nb, dtype)
-    margin_kernel(epsilon_a, face_a, margin, eps_a)
-    margin_kernel(epsilon_b, face_b, margin, eps_b)
-    rm = (coords_a, frames_a, coords_b, frames_b)
+    rm, eps_a, eps_b = _posed(body_a, body_b, pose, margin, to_move[:new])
     found = result_buffers(max(m, 1), coords_a)
     n = listed_kernel(
         rm, eps_a, eps_b, near, ZERO, m, leaf_params, listed_workspace(coords_a), found, ZERO, stats
@@ -214,7 +205,6 @@ def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params
     coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
     master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
     rotation, shift = pose
-    dtype = coords_a.dtype
     nb = master_coords.shape[0]
     m = nodes.shape[0]
     centres_b = np.empty((nb, 3))
@@ -240,14 +230,7 @@ def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params
             coarse[nc, 0], coarse[nc, 1] = i, j
             nc += 1
     stats[STAT_SPHERES] += pruned
-    coords_b = np.empty((nb, 9), dtype)
-    frames_b = np.empty((nb, 14), dtype)
-    move_kernel(master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b)
-    eps_a = np.empty(epsilon_a.shape[0], dtype)
-    eps_b = np.empty(nb, dtype)
-    margin_kernel(epsilon_a, face_a, margin, eps_a)
-    margin_kernel(epsilon_b, face_b, margin, eps_b)
-    rm = (coords_a, frames_a, coords_b, frames_b)
+    rm, eps_a, eps_b = _posed(body_a, body_b, pose, margin, to_move[:new])
     buffers = listed_workspace(coords_a)
     hits = result_buffers(max(nc, 1), coords_a)
     h = listed_kernel(rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, buffers, hits, ZERO, stats)
@@ -271,6 +254,25 @@ def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params
         hits[5][:h].copy(),
     )
     return status, _contacts(found, n, face_a, face_b, contact), trimmed
+
+
+@njit(**JIT)
+def _posed(body_a, body_b, pose, margin, moving):
+    """``(rm, eps_a, eps_b)`` for :func:`~engine.kernels.triangle_batch.listed_kernel`: B's
+    nodes ``moving`` (int64) moved into A's frame (other rows unset) and both trees' ε with
+    the ``margin`` on surrogates, in A's precision."""
+    coords_a, frames_a, epsilon_a, face_a = body_a[0], body_a[1], body_a[2], body_a[3]
+    master_coords, master_frames, epsilon_b, face_b = body_b[0], body_b[1], body_b[2], body_b[3]
+    dtype = coords_a.dtype
+    nb = master_coords.shape[0]
+    coords_b = np.empty((nb, 9), dtype)
+    frames_b = np.empty((nb, 14), dtype)
+    move_kernel(master_coords, master_frames, moving, pose[0], pose[1], coords_b, frames_b)
+    eps_a = np.empty(epsilon_a.shape[0], dtype)
+    eps_b = np.empty(nb, dtype)
+    margin_kernel(epsilon_a, face_a, margin, eps_a)
+    margin_kernel(epsilon_b, face_b, margin, eps_b)
+    return (coords_a, frames_a, coords_b, frames_b), eps_a, eps_b
 
 
 @njit(**JIT)
