@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.numba-cache
 
-.PHONY: test test-slow lint bench venv clean
+.PHONY: serve test test-slow lint bench venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -14,6 +14,9 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 venv: $(STAMP)
+
+serve: $(STAMP)    # the service on 127.0.0.1:8000, store under ./data (MRDEM_* to change)
+	$(PY) -m service
 
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow"

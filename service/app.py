@@ -1,0 +1,81 @@
+"""The FastAPI application: settings, store, engine runner, metrics, routers, errors."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+
+import engine
+
+from .codecs import BodyLimit
+from .compute import EngineRunner
+from .errors import install_handlers
+from .metrics import Metrics
+from .routers import contacts, health, meshes
+from .settings import Settings
+from .store import Store
+
+__all__ = ["create_app"]
+
+log = logging.getLogger("mrdem.service")
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The service app. The store opens and the kernel warm-up starts (in a background
+    thread: ``/readyz`` answers 503 until it is done) when the app starts."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        app.state.store = Store(settings.data_dir, settings.tree_cache)
+        if settings.warmup:
+            threading.Thread(target=_warm, args=(app.state,), name="warmup", daemon=True).start()
+        else:
+            app.state.ready.set()
+        try:
+            yield
+        finally:
+            app.state.store.close()
+
+    app = FastAPI(
+        title="mrdem",
+        version="0.1.0",
+        summary="Multiresolution DEM: contacts and rigid-body steps for triangulated meshes",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.metrics = metrics = Metrics()
+    app.state.engine = EngineRunner(settings.engine_concurrency, metrics)
+    app.state.ready = threading.Event()
+    app.state.warmup_error = None
+    app.state.warmup_seconds = None
+    install_handlers(app)
+    for module in (health, meshes, contacts):
+        app.include_router(module.router)
+    app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
+
+    @app.middleware("http")
+    async def observe(request: Request, call_next):
+        start = time.perf_counter()
+        response = await call_next(request)
+        route = request.scope.get("route")
+        path = getattr(route, "path", "unmatched")
+        metrics.requests.labels(request.method, path, str(response.status_code)).inc()
+        metrics.latency.labels(request.method, path).observe(time.perf_counter() - start)
+        return response
+
+    return app
+
+
+def _warm(state) -> None:
+    try:
+        state.warmup_seconds = engine.warmup()
+        log.info("kernels ready in %.1f s", state.warmup_seconds)
+        state.ready.set()
+    except Exception as exc:  # reported by /readyz; the process stays up for diagnosis
+        log.exception("kernel warm-up failed")
+        state.warmup_error = f"{type(exc).__name__}: {exc}"

@@ -1,0 +1,174 @@
+"""Request and response bodies: JSON, or msgpack with numpy arrays as typed binary.
+
+msgpack arrays travel as extension type :data:`NDARRAY_EXT` whose payload is the msgpack
+array ``[dtype, shape, data]``: a numpy dtype string (little-endian or byte-order-free
+bool, integer, unsigned or float, at most 8 bytes), the shape, and the raw row-major
+bytes. Nothing else is accepted, so decoding never executes code (no pickle). In JSON,
+arrays are nested lists and non-finite numbers (``NaN``, ``Infinity``) are rejected.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import msgpack
+import numpy as np
+from fastapi import Request
+from fastapi.responses import Response
+
+from .errors import BadRequest, NotAcceptable, PayloadTooLarge, UnsupportedMediaType
+
+__all__ = ["JSON", "MSGPACK", "NDARRAY_EXT", "BodyLimit", "decode", "encode_msgpack", "respond"]
+
+JSON = "application/json"
+MSGPACK = "application/msgpack"
+NDARRAY_EXT = 1
+_KINDS = "biuf"
+
+
+def _ext_hook(code: int, payload: bytes):
+    if code != NDARRAY_EXT:
+        raise BadRequest(f"unknown msgpack extension type {code} (arrays use {NDARRAY_EXT})")
+    try:
+        dtype_name, shape, data = msgpack.unpackb(payload, raw=False)
+        dtype = np.dtype(dtype_name)
+        shape = tuple(int(n) for n in shape)
+    except (ValueError, TypeError, msgpack.UnpackException) as exc:
+        raise BadRequest(f"malformed msgpack array: {exc}") from None
+    if dtype.kind not in _KINDS or dtype.itemsize > 8 or dtype.byteorder == ">":
+        raise BadRequest(f"array dtype {dtype.str!r} not accepted (little-endian numbers only)")
+    if any(n < 0 for n in shape) or not isinstance(data, bytes):
+        raise BadRequest("malformed msgpack array: negative dimension or non-binary data")
+    if math.prod(shape) * dtype.itemsize != len(data):
+        raise BadRequest(
+            f"msgpack array of shape {list(shape)} and dtype {dtype.str} needs"
+            f" {math.prod(shape) * dtype.itemsize} bytes, got {len(data)}"
+        )
+    return np.frombuffer(data, dtype).reshape(shape).copy()
+
+
+def _no_constant(name: str):
+    raise BadRequest(f"non-finite number {name} in JSON (only finite numbers are accepted)")
+
+
+def decode(body: bytes, content_type: str | None) -> Any:
+    """The decoded body; 400 for a malformed one, 415 for another media type."""
+    media = (content_type or "").split(";")[0].strip().lower()
+    if not body:
+        raise BadRequest("empty request body")
+    if media in (JSON, ""):
+        try:
+            return json.loads(body, parse_constant=_no_constant)
+        except (ValueError, RecursionError) as exc:
+            raise BadRequest(f"malformed JSON: {exc}") from None
+    if media in (MSGPACK, "application/x-msgpack"):
+        try:
+            return msgpack.unpackb(body, raw=False, ext_hook=_ext_hook, strict_map_key=True)
+        except BadRequest:
+            raise
+        except (ValueError, TypeError, msgpack.UnpackException, RecursionError) as exc:
+            raise BadRequest(f"malformed msgpack: {exc}") from None
+    raise UnsupportedMediaType(
+        f"content type {media!r} not accepted; use {JSON}, {MSGPACK} or multipart/form-data"
+    )
+
+
+def _msgpack_default(value):
+    if isinstance(value, np.ndarray):
+        array = np.ascontiguousarray(value)
+        if array.dtype.byteorder == ">":
+            array = array.astype(array.dtype.newbyteorder("<"))
+        payload = msgpack.packb([array.dtype.str, list(array.shape), array.tobytes()])
+        return msgpack.ExtType(NDARRAY_EXT, payload)
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot encode {type(value).__name__}")
+
+
+def encode_msgpack(payload: Any) -> bytes:
+    return msgpack.packb(payload, default=_msgpack_default, use_bin_type=True)
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot encode {type(value).__name__}")
+
+
+def _wants(request: Request) -> str:
+    accept = request.headers.get("accept", "").lower()
+    if not accept:
+        return JSON
+    kinds = [part.split(";")[0].strip() for part in accept.split(",")]
+    for kind in kinds:
+        if kind in (MSGPACK, "application/x-msgpack"):
+            return MSGPACK
+        if kind in (JSON, "application/*", "*/*", "application/problem+json"):
+            return JSON
+    raise NotAcceptable(f"cannot answer {accept!r}; this service speaks {JSON} and {MSGPACK}")
+
+
+def respond(request: Request, payload: Any, status: int = 200, headers=None) -> Response:
+    """``payload`` in the media type the request accepts (JSON unless it asks msgpack)."""
+    if _wants(request) == MSGPACK:
+        return Response(encode_msgpack(payload), status, headers, media_type=MSGPACK)
+    body = json.dumps(payload, default=_json_default, allow_nan=False, separators=(",", ":"))
+    return Response(body, status, headers, media_type=JSON)
+
+
+class BodyLimit:
+    """ASGI middleware: request bodies larger than ``limit`` bytes get a 413 — at once from
+    ``Content-Length``, else as soon as the streamed bytes pass the limit."""
+
+    def __init__(self, app, limit: int) -> None:
+        self.app, self.limit = app, limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        for name, value in scope.get("headers", ()):
+            if name == b"content-length":
+                try:
+                    length = int(value)
+                except ValueError:
+                    length = -1
+                if length > self.limit:
+                    return await _too_large(send, self.limit)
+        seen = 0
+
+        async def counted():
+            nonlocal seen
+            message = await receive()
+            seen += len(message.get("body", b""))
+            if seen > self.limit:
+                raise PayloadTooLarge(f"request body over the limit of {self.limit} bytes")
+            return message
+
+        return await self.app(scope, counted, send)
+
+
+async def _too_large(send, limit: int) -> None:
+    body = json.dumps(
+        {
+            "type": "about:blank",
+            "title": PayloadTooLarge.title,
+            "status": 413,
+            "detail": f"request body over the limit of {limit} bytes",
+        }
+    ).encode()
+    await send(
+        {
+            "type": "http.response.start",
+            "status": 413,
+            "headers": [
+                (b"content-type", b"application/problem+json"),
+                (b"content-length", str(len(body)).encode()),
+                (b"connection", b"close"),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": body})

@@ -1,0 +1,36 @@
+"""Engine calls off the event loop, at most ``engine_concurrency`` at a time.
+
+The kernels release the GIL (``nogil``) and none uses Numba's ``parallel=True`` threading
+layer (which aborts the process when parallel kernels are entered from several threads):
+a batched call spreads its pairs over a Python thread pool instead. So engine calls may run
+in any number of request threads; the limiter only bounds how many run at once.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable
+from typing import Any
+
+import anyio
+import anyio.to_thread
+
+__all__ = ["EngineRunner"]
+
+
+class EngineRunner:
+    def __init__(self, concurrency: int, metrics=None) -> None:
+        self.limiter = anyio.CapacityLimiter(concurrency)
+        self.metrics = metrics
+
+    async def run(self, name: str, fn: Callable, *args: Any, **kwargs: Any) -> Any:
+        """``fn(*args, **kwargs)`` in a worker thread; its seconds go to the metrics."""
+        start = time.perf_counter()
+        try:
+            return await anyio.to_thread.run_sync(
+                functools.partial(fn, *args, **kwargs), limiter=self.limiter
+            )
+        finally:
+            if self.metrics is not None:
+                self.metrics.engine_seconds.labels(name).observe(time.perf_counter() - start)

@@ -1,0 +1,141 @@
+"""The service's errors, each an RFC 9457 problem (``application/problem+json``).
+
+One hierarchy for the service layer::
+
+    ServiceError                  status, title, detail (+ extra members)
+     ├── BadRequest (400)         a body that cannot be decoded
+     ├── Unauthorized (401)       missing or unknown API key
+     ├── NotFound (404)           unknown id (or another key's)
+     ├── NotAcceptable (406)      no response media type the client accepts
+     ├── PayloadTooLarge (413)    body over ``max_body_bytes``
+     ├── UnsupportedMediaType (415)
+     ├── Unprocessable (422)      well-formed but invalid: shapes, ranges, limits
+     └── NotReady (503)           kernels still compiling
+
+Engine errors (:class:`engine.EngineError`) are client errors by construction and become
+422 problems; request-validation errors too. Anything else is a bug: logged, answered with
+a 500 problem, the server stays up.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from engine import EngineError
+
+__all__ = [
+    "BadRequest",
+    "NotAcceptable",
+    "NotFound",
+    "NotReady",
+    "PayloadTooLarge",
+    "ServiceError",
+    "Unauthorized",
+    "Unprocessable",
+    "UnsupportedMediaType",
+    "install_handlers",
+    "problem",
+]
+
+PROBLEM = "application/problem+json"
+log = logging.getLogger("mrdem.service")
+
+
+class ServiceError(Exception):
+    """An error the client can act on; ``detail`` says exactly what was wrong."""
+
+    status = 500
+    title = "Internal Server Error"
+
+    def __init__(self, detail: str, headers: dict | None = None, **extra) -> None:
+        super().__init__(detail)
+        self.detail, self.headers, self.extra = detail, headers or {}, extra
+
+
+class BadRequest(ServiceError):
+    status, title = 400, "Bad Request"
+
+
+class Unauthorized(ServiceError):
+    status, title = 401, "Unauthorized"
+
+
+class NotFound(ServiceError):
+    status, title = 404, "Not Found"
+
+
+class NotAcceptable(ServiceError):
+    status, title = 406, "Not Acceptable"
+
+
+class PayloadTooLarge(ServiceError):
+    status, title = 413, "Content Too Large"
+
+
+class UnsupportedMediaType(ServiceError):
+    status, title = 415, "Unsupported Media Type"
+
+
+class Unprocessable(ServiceError):
+    status, title = 422, "Unprocessable Content"
+
+
+class NotReady(ServiceError):
+    status, title = 503, "Service Unavailable"
+
+
+def problem(
+    status: int, title: str, detail: str, instance: str | None = None, headers=None, **extra
+) -> JSONResponse:
+    """An RFC 9457 problem response."""
+    body = {"type": "about:blank", "title": title, "status": status, "detail": detail}
+    if instance:
+        body["instance"] = instance
+    body.update(extra)
+    return JSONResponse(body, status_code=status, media_type=PROBLEM, headers=headers)
+
+
+def install_handlers(app: FastAPI) -> None:
+    """Map every error to a problem response."""
+
+    @app.exception_handler(ServiceError)
+    async def _service(request: Request, exc: ServiceError):
+        return problem(
+            exc.status, exc.title, exc.detail, request.url.path, exc.headers, **exc.extra
+        )
+
+    @app.exception_handler(EngineError)
+    async def _engine(request: Request, exc: EngineError):
+        return problem(422, Unprocessable.title, str(exc), request.url.path)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError):
+        parts = []
+        for error in exc.errors():
+            where = ".".join(str(p) for p in error.get("loc", ()) if p != "body")
+            parts.append(f"{where}: {error.get('msg')}" if where else str(error.get("msg")))
+        return problem(422, Unprocessable.title, "; ".join(parts), request.url.path)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException):
+        titles = {404: "Not Found", 405: "Method Not Allowed"}
+        detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+        if exc.status_code == 404 and detail == "Not Found":
+            detail = f"no route {request.method} {request.url.path}"
+        return problem(
+            exc.status_code,
+            titles.get(exc.status_code, "Error"),
+            detail,
+            request.url.path,
+            getattr(exc, "headers", None),
+        )
+
+    @app.exception_handler(Exception)
+    async def _bug(request: Request, exc: Exception):
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return problem(500, ServiceError.title, "internal error (logged)", request.url.path)

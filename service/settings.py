@@ -1,0 +1,54 @@
+"""Service settings, read once from the environment (``MRDEM_*``) by pydantic-settings."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+__all__ = ["Settings"]
+
+
+class Settings(BaseSettings):
+    """Every knob of the service; each field ``name`` is read from ``MRDEM_NAME``.
+
+    ``api_keys`` is a comma-separated list in the environment (``MRDEM_API_KEYS=k1,k2``);
+    empty means no authentication (one anonymous owner).
+    """
+
+    model_config = SettingsConfigDict(env_prefix="MRDEM_", extra="ignore")
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    data_dir: Path = Path("data")
+    api_keys: Annotated[tuple[str, ...], NoDecode] = ()
+    max_body_bytes: int = Field(64 * 2**20, ge=1024, description="largest request body (413)")
+    max_triangles: int = Field(1_000_000, ge=1, description="triangles per mesh (422)")
+    max_pairs: int = Field(10_000, ge=1, description="body pairs per contacts request (422)")
+    max_bodies: int = Field(100_000, ge=1, description="bodies per scene (422)")
+    max_steps: int = Field(10_000, ge=1, description="steps per step request (422)")
+    engine_concurrency: int = Field(
+        default_factory=lambda: max(1, os.cpu_count() or 1),
+        ge=1,
+        description="engine calls running at once (the rest wait)",
+    )
+    engine_threads: int = Field(
+        default_factory=lambda: max(1, os.cpu_count() or 1),
+        ge=1,
+        description="worker threads of one batched engine call",
+    )
+    warmup: bool = Field(True, description="compile or load every kernel before /readyz")
+    tree_cache: int = Field(256, ge=1, description="surrogate trees kept in memory")
+
+    @field_validator("api_keys", mode="before")
+    @classmethod
+    def _split_keys(cls, value):
+        if isinstance(value, str):
+            value = value.split(",")
+        keys = tuple(k.strip() for k in value if k and k.strip())
+        if any(len(k) < 8 for k in keys):
+            raise ValueError("every API key must have at least 8 characters")
+        return keys

@@ -1,0 +1,80 @@
+"""What the service acknowledged survives ``kill -9``; API keys isolate owners."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+from harness import ServiceProcess, assert_problem, tetrahedron
+
+from engine import shapes
+
+
+def _ball(epsilon: float) -> dict:
+    mesh = shapes.icosphere(2, radius=0.5)
+    return {"vertices": mesh.vertices.tolist(), "faces": mesh.faces.tolist(), "epsilon": epsilon}
+
+
+def test_meshes_survive_kill_9_and_restart(tmp_path):
+    data = tmp_path / "data"
+    first = ServiceProcess(data).start()
+    try:
+        with httpx.Client(base_url=first.url, timeout=120) as client:
+            facts = [client.post("/v1/meshes", json=_ball(e)).json() for e in (0.01, 0.02)]
+            client.delete(f"/v1/meshes/{facts[1]['id']}")
+    finally:
+        first.kill()  # no shutdown: whatever was acknowledged must already be on disk
+    second = ServiceProcess(data).start()
+    try:
+        with httpx.Client(base_url=second.url, timeout=120) as client:
+            assert client.get(f"/v1/meshes/{facts[0]['id']}").json() == facts[0]
+            assert client.get(f"/v1/meshes/{facts[1]['id']}").status_code == 404
+            assert [m["id"] for m in client.get("/v1/meshes").json()["meshes"]] == [facts[0]["id"]]
+            pair = {"a": facts[0]["id"], "b": facts[0]["id"], "pose_b": {"position": [0.99, 0, 0]}}
+            found = client.post("/v1/contacts", json={"pairs": [pair]}).json()
+            assert len(found["results"][0]["points"]) > 0  # the stored tree loads and works
+            again = client.post("/v1/meshes", json=_ball(0.01))
+            assert again.status_code == 200 and again.json() == facts[0]
+    finally:
+        second.stop()
+    assert sorted(p.name for p in (data / "trees").iterdir()) == [f"{facts[0]['id']}.npz"]
+
+
+@pytest.fixture(scope="module")
+def keyed(tmp_path_factory):
+    process = ServiceProcess(
+        tmp_path_factory.mktemp("keyed") / "data", api_keys="alpha-key-0001, beta-key-00002"
+    ).start()
+    yield process
+    process.stop()
+
+
+def test_api_keys_are_required(keyed):
+    with httpx.Client(base_url=keyed.url) as client:
+        missing = client.get("/v1/meshes")
+        assert_problem(missing, 401, "missing api key")
+        assert missing.headers["www-authenticate"] == "Bearer"
+        wrong = client.get("/v1/meshes", headers={"authorization": "Bearer nope-nope-nope"})
+        assert_problem(wrong, 401, "unknown api key")
+        assert_problem(client.post("/v1/meshes", json=tetrahedron()), 401, "missing api key")
+        assert client.get("/healthz").status_code == 200  # probes need no key
+        assert client.get("/readyz").status_code == 200
+
+
+def test_a_key_sees_only_its_own_meshes(keyed):
+    alpha = httpx.Client(base_url=keyed.url, headers={"authorization": "Bearer alpha-key-0001"})
+    beta = httpx.Client(base_url=keyed.url, headers={"authorization": "Bearer beta-key-00002"})
+    with alpha, beta:
+        mine = alpha.post("/v1/meshes", json=tetrahedron())
+        assert mine.status_code == 201
+        mesh_id = mine.json()["id"]
+        assert_problem(beta.get(f"/v1/meshes/{mesh_id}"), 404, "no mesh")
+        assert_problem(beta.delete(f"/v1/meshes/{mesh_id}"), 404, "no mesh")
+        pair = {"a": mesh_id, "b": mesh_id, "pose_b": {"position": [0.5, 0, 0]}}
+        assert_problem(beta.post("/v1/contacts", json={"pairs": [pair]}), 404, "no mesh")
+        assert beta.get("/v1/meshes").json()["meshes"] == []
+        # the same content uploaded by beta is beta's own (same id, shared tree file)
+        assert beta.post("/v1/meshes", json=tetrahedron()).status_code == 201
+        assert alpha.delete(f"/v1/meshes/{mesh_id}").status_code == 204
+        assert beta.get(f"/v1/meshes/{mesh_id}").status_code == 200
+        assert beta.post("/v1/contacts", json={"pairs": [pair]}).status_code == 200
+        assert alpha.get("/v1/meshes").json()["meshes"] == []
