@@ -15,7 +15,8 @@ from .codecs import BodyLimit
 from .compute import EngineRunner
 from .errors import install_handlers
 from .metrics import Metrics
-from .routers import contacts, health, meshes
+from .routers import contacts, health, meshes, scenes
+from .scenes import LiveScenes
 from .settings import Settings
 from .store import Store
 
@@ -32,6 +33,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         app.state.store = Store(settings.data_dir, settings.tree_cache)
+        app.state.scenes = LiveScenes(app.state.store, settings.engine_threads)
         if settings.warmup:
             threading.Thread(target=_warm, args=(app.state,), name="warmup", daemon=True).start()
         else:
@@ -54,7 +56,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.warmup_error = None
     app.state.warmup_seconds = None
     install_handlers(app)
-    for module in (health, meshes, contacts):
+    for module in (health, meshes, contacts, scenes):
         app.include_router(module.router)
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
 

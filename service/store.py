@@ -6,7 +6,9 @@ before the row that refers to it — to a temporary file, fsynced, renamed into 
 directory fsynced — so an acknowledged mesh always has its tree, and a crash leaves at
 most an unreferenced file (reused by the next upload of the same content, or removed with
 leftover temporaries at start-up). Meshes belong to an owner (the API key's digest; "" when
-the service runs without keys); a tree file is shared by every owner of the same content.
+the service runs without keys); a tree file is shared by every owner of the same content
+and kept while a mesh or a scene refers to it. A scene's row holds its specification and
+its latest state, replaced in one transaction per acknowledged step.
 """
 
 from __future__ import annotations
@@ -33,6 +35,21 @@ CREATE TABLE IF NOT EXISTS meshes (
     created REAL NOT NULL,
     PRIMARY KEY (owner, id)
 );
+CREATE TABLE IF NOT EXISTS scenes (
+    owner   TEXT NOT NULL,
+    id      TEXT NOT NULL,
+    spec    TEXT NOT NULL,
+    state   BLOB NOT NULL,
+    steps   INTEGER NOT NULL,
+    updated REAL NOT NULL,
+    PRIMARY KEY (owner, id)
+);
+CREATE TABLE IF NOT EXISTS scene_trees (
+    owner TEXT NOT NULL,
+    scene TEXT NOT NULL,
+    tree  TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS scene_trees_tree ON scene_trees (tree);
 """
 
 
@@ -135,17 +152,83 @@ class Store:
         return [json.loads(r[0]) for r in rows]
 
     def delete_mesh(self, owner: str, mesh_id: str) -> bool:
-        """Forget ``owner``'s mesh; its tree file goes when no owner refers to it."""
+        """Forget ``owner``'s mesh; its tree file goes when nothing refers to it."""
         with self.lock:
             cursor = self.db.execute(
                 "DELETE FROM meshes WHERE owner = ? AND id = ?", (owner, mesh_id)
             )
             if cursor.rowcount == 0:
                 return False
-            left = self.db.execute("SELECT 1 FROM meshes WHERE id = ?", (mesh_id,)).fetchone()
-            if left is None:
-                self._cache.pop(mesh_id, None)
-                self.tree_path(mesh_id).unlink(missing_ok=True)
+            self._drop_unused([mesh_id])
+        return True
+
+    def _drop_unused(self, tree_ids) -> None:
+        """Remove the tree files no mesh and no scene refers to (lock held)."""
+        for tree_id in set(tree_ids):
+            used = self.db.execute(
+                "SELECT 1 FROM meshes WHERE id = ? UNION ALL"
+                " SELECT 1 FROM scene_trees WHERE tree = ? LIMIT 1",
+                (tree_id, tree_id),
+            ).fetchone()
+            if used is None:
+                self._cache.pop(tree_id, None)
+                self.tree_path(tree_id).unlink(missing_ok=True)
+
+    # ----------------------------------------------------------------- scenes
+    def add_scene(self, owner: str, scene_id: str, spec: dict, state: bytes, trees) -> None:
+        """Record a new scene, its state and the trees it uses, in one transaction."""
+        with self.lock:
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                self.db.execute(
+                    "INSERT INTO scenes (owner, id, spec, state, steps, updated)"
+                    " VALUES (?, ?, ?, ?, 0, ?)",
+                    (owner, scene_id, json.dumps(spec), state, time.time()),
+                )
+                self.db.executemany(
+                    "INSERT INTO scene_trees (owner, scene, tree) VALUES (?, ?, ?)",
+                    [(owner, scene_id, t) for t in sorted(set(trees))],
+                )
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
+
+    def scene(self, owner: str, scene_id: str) -> tuple[dict, bytes, int] | None:
+        """``(spec, state, steps)`` of ``owner``'s scene, or None."""
+        with self.lock:
+            row = self.db.execute(
+                "SELECT spec, state, steps FROM scenes WHERE owner = ? AND id = ?",
+                (owner, scene_id),
+            ).fetchone()
+        return None if row is None else (json.loads(row[0]), bytes(row[1]), int(row[2]))
+
+    def save_state(self, owner: str, scene_id: str, state: bytes, steps: int) -> bool:
+        """Replace the scene's state (committed before this returns); False if it is gone."""
+        with self.lock:
+            cursor = self.db.execute(
+                "UPDATE scenes SET state = ?, steps = ?, updated = ? WHERE owner = ? AND id = ?",
+                (state, steps, time.time(), owner, scene_id),
+            )
+            return cursor.rowcount == 1
+
+    def delete_scene(self, owner: str, scene_id: str) -> bool:
+        with self.lock:
+            cursor = self.db.execute(
+                "DELETE FROM scenes WHERE owner = ? AND id = ?", (owner, scene_id)
+            )
+            if cursor.rowcount == 0:
+                return False
+            trees = [
+                r[0]
+                for r in self.db.execute(
+                    "SELECT tree FROM scene_trees WHERE owner = ? AND scene = ?", (owner, scene_id)
+                )
+            ]
+            self.db.execute(
+                "DELETE FROM scene_trees WHERE owner = ? AND scene = ?", (owner, scene_id)
+            )
+            self._drop_unused(trees)
         return True
 
 

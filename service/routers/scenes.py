@@ -1,0 +1,162 @@
+"""``/v1/scenes``: create, read, overwrite the state of, step and delete scenes."""
+
+from __future__ import annotations
+
+import dataclasses
+import uuid
+
+import numpy as np
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import Response
+
+from ..auth import owner_of
+from ..codecs import decode, respond
+from ..errors import NotFound, Unprocessable
+from ..inputs import array, number
+from ..scenes import (
+    STATE,
+    LiveScene,
+    build_scene,
+    pack_state,
+    parse_spec,
+    restore_state,
+    state_of,
+)
+from .meshes import known_mesh
+
+router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
+
+
+@router.post("")
+async def create_scene(request: Request, owner: str = Depends(owner_of)):
+    """``{"bodies": [{"mesh", "position", "orientation", "velocity", "angular_velocity",
+    "density" | "mass", "fixed"}], "planes": [{"point", "normal", "size"}], "gravity",
+    "epsilon" (of the planes), "dt", "scheme", "kernel", "contact_model": {"law":
+    "paper" | "linear" | "hertz", "stiffness", "damping", "friction", "slip_velocity"}}``
+    → 201 ``{"id", …}``."""
+    state = request.app.state
+    spec = parse_spec(
+        decode(await request.body(), request.headers.get("content-type")),
+        state.settings.max_bodies,
+    )
+    meshes = sorted({b["mesh"] for b in spec["bodies"]})
+    for mesh_id in meshes:
+        known_mesh(request, owner, mesh_id)
+    scene = await state.engine.run(
+        "build_scene", build_scene, spec, state.store.tree, state.settings.engine_threads
+    )
+    scene_id = uuid.uuid4().hex
+    state.store.add_scene(owner, scene_id, spec, pack_state(scene), meshes)
+    state.scenes.add(owner, scene_id, LiveScene(scene, spec, 0))
+    return respond(request, _summary(scene_id, state.scenes.get(owner, scene_id)), 201)
+
+
+@router.get("/{scene_id}")
+async def get_scene(scene_id: str, request: Request, owner: str = Depends(owner_of)):
+    live = await _live(request, owner, scene_id)
+    return respond(request, _summary(scene_id, live))
+
+
+@router.put("/{scene_id}/state")
+async def put_state(scene_id: str, request: Request, owner: str = Depends(owner_of)):
+    """Overwrite any of ``positions (n, 3)``, ``orientations (n, 4)``, ``velocities``,
+    ``angular_velocities (n, 3)`` (n: bodies, then planes)."""
+    state = request.app.state
+    body = decode(await request.body(), request.headers.get("content-type"))
+    if not isinstance(body, dict) or not set(body) & set(STATE):
+        raise Unprocessable(f"body must be an object with any of {list(STATE)}")
+    unknown = set(body) - set(STATE)
+    if unknown:
+        raise Unprocessable(f"unknown state fields {sorted(unknown)}; expected {list(STATE)}")
+    live = await _live(request, owner, scene_id)
+    n = len(live.scene)
+    new = {k: array(v, k, (n, 4 if k == "orientations" else 3)) for k, v in body.items()}
+
+    def apply():
+        with live.lock:
+            live.scene.set_state(**new)
+            if not state.store.save_state(owner, scene_id, pack_state(live.scene), live.steps):
+                raise NotFound(f"no scene {scene_id!r}")
+
+    await state.engine.run("set_state", apply)
+    return respond(request, _summary(scene_id, live))
+
+
+@router.post("/{scene_id}/step")
+async def step_scene(scene_id: str, request: Request, owner: str = Depends(owner_of)):
+    """``{"steps": n, "dt"?}`` → the new state and each step's statistics. The state is
+    stored before the answer; a step that would leave a non-finite state is undone (422)."""
+    state = request.app.state
+    raw = await request.body()
+    body = decode(raw, request.headers.get("content-type")) if raw else {}
+    if not isinstance(body, dict):
+        raise Unprocessable("body must be an object")
+    steps = number(body.get("steps", 1), "steps", 1, state.settings.max_steps, integer=True)
+    live = await _live(request, owner, scene_id)
+    dt = number(body.get("dt", live.spec["dt"]), "dt", 1e-12, 1.0)
+
+    def run():
+        with live.lock:
+            scene = live.scene
+            before = pack_state(scene)
+            stats = []
+            for k in range(steps):
+                stats.append(scene.step(dt))
+                if not all(np.isfinite(a).all() for a in state_of(scene).values()):
+                    restore_state(scene, before)
+                    raise Unprocessable(
+                        f"step {k + 1} of {steps} left a non-finite state (the simulation"
+                        " diverged); the scene keeps the state it had before this request."
+                        " Try a smaller dt or a softer contact model"
+                    )
+            if not state.store.save_state(owner, scene_id, pack_state(scene), live.steps + steps):
+                restore_state(scene, before)
+                raise NotFound(f"no scene {scene_id!r}")
+            live.steps += steps
+            return stats, state_of(scene), scene.time
+
+    stats, arrays, time = await state.engine.run("step", run)
+    m = state.metrics
+    m.steps.inc(steps)
+    m.picard.inc(sum(s.picard_iterations for s in stats))
+    m.comparisons.inc(sum(s.comparisons for s in stats))
+    m.fallbacks.inc(sum(s.fallbacks for s in stats))
+    return respond(
+        request,
+        {
+            "id": scene_id,
+            "time": time,
+            "steps": live.steps,
+            "state": arrays,
+            "stats": [dataclasses.asdict(s) for s in stats],
+        },
+    )
+
+
+@router.delete("/{scene_id}", status_code=204)
+async def delete_scene(scene_id: str, request: Request, owner: str = Depends(owner_of)):
+    state = request.app.state
+    if not state.store.delete_scene(owner, scene_id):
+        raise NotFound(f"no scene {scene_id!r}")
+    state.scenes.drop(owner, scene_id)
+    return Response(status_code=204)
+
+
+async def _live(request: Request, owner: str, scene_id: str) -> LiveScene:
+    state = request.app.state
+    return await state.engine.run("load_scene", state.scenes.get, owner, scene_id)
+
+
+def _summary(scene_id: str, live: LiveScene) -> dict:
+    spec = live.spec
+    return {
+        "id": scene_id,
+        "bodies": len(spec["bodies"]),
+        "planes": len(spec["planes"]),
+        "time": live.scene.time,
+        "steps": live.steps,
+        "dt": spec["dt"],
+        "scheme": spec["scheme"],
+        "state": state_of(live.scene),
+        "spec": spec,
+    }

@@ -1,0 +1,227 @@
+"""Scenes on the server: the specification a client sends, the engine scene built from it,
+its state as bytes for the store, and the live scenes kept in memory.
+
+A specification is normalised (defaults filled in, arrays as lists) before it is stored,
+so a scene rebuilt after a restart is the scene the client created; its latest stepped
+state is then restored on top. Rows of the state arrays: the bodies in the order given,
+then the planes (fixed).
+"""
+
+from __future__ import annotations
+
+import io
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from engine import SCHEMES, HertzSpring, LinearSpring, PaperSpring, Scene
+from engine.arguments import KERNELS
+
+from .errors import NotFound, Unprocessable
+from .inputs import array, choice, flag, number, quaternion
+from .inputs import field as member
+
+__all__ = [
+    "LAWS",
+    "STATE",
+    "LiveScene",
+    "LiveScenes",
+    "build_scene",
+    "pack_state",
+    "parse_spec",
+    "restore_state",
+    "state_of",
+]
+
+LAWS = {"paper": PaperSpring, "linear": LinearSpring, "hertz": HertzSpring}
+STATE = ("positions", "orientations", "velocities", "angular_velocities")
+MAX_DT = 1.0
+
+
+def parse_spec(body, max_bodies: int) -> dict:
+    """The normalised specification of ``POST /v1/scenes`` (422 naming any bad field)."""
+    if not isinstance(body, dict):
+        raise Unprocessable("body must be an object")
+    bodies = body.get("bodies", [])
+    planes = body.get("planes", [])
+    if not isinstance(bodies, list) or not isinstance(planes, list):
+        raise Unprocessable("bodies and planes must be lists")
+    if not bodies:
+        raise Unprocessable("a scene needs at least one body")
+    if len(bodies) + len(planes) > max_bodies:
+        raise Unprocessable(
+            f"{len(bodies) + len(planes):,} bodies and planes; this service takes <= {max_bodies:,}"
+        )
+    law = body.get("contact_model", {})
+    if not isinstance(law, dict):
+        raise Unprocessable("contact_model must be an object")
+    spec = {
+        "bodies": [_body(b, f"bodies[{i}]") for i, b in enumerate(bodies)],
+        "planes": [_plane(p, f"planes[{i}]") for i, p in enumerate(planes)],
+        "gravity": array(body.get("gravity", [0.0, 0.0, -9.81]), "gravity", (3,)).tolist(),
+        "epsilon": number(body.get("epsilon", 0.01), "epsilon", 1e-12),
+        "dt": number(body.get("dt", 1e-3), "dt", 1e-12, MAX_DT),
+        "scheme": choice(body.get("scheme", "implicit-surrogate"), "scheme", SCHEMES),
+        "kernel": choice(body.get("kernel", "hybrid"), "kernel", KERNELS),
+        "max_halvings": number(body.get("max_halvings", 0), "max_halvings", 0, 8, integer=True),
+        "contact_model": {
+            "law": choice(law.get("law", "paper"), "contact_model.law", LAWS),
+            **{
+                name: number(law.get(name, default), f"contact_model.{name}", 0.0)
+                for name, default in (
+                    ("stiffness", 1000.0),
+                    ("damping", 0.0),
+                    ("friction", 0.5),
+                    ("slip_velocity", 1e-2),
+                )
+            },
+        },
+    }
+    LAWS[spec["contact_model"]["law"]](**_law_parameters(spec))  # the engine's own checks
+    return spec
+
+
+def _law_parameters(spec: dict) -> dict:
+    return {k: v for k, v in spec["contact_model"].items() if k != "law"}
+
+
+def _body(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise Unprocessable(f"{where} must be an object")
+    mesh = member(value, "mesh", where)
+    if not isinstance(mesh, str):
+        raise Unprocessable(f"{where}.mesh must be a mesh id (string)")
+    out = {
+        "mesh": mesh,
+        "position": array(value.get("position", [0.0] * 3), f"{where}.position", (3,)).tolist(),
+        "orientation": quaternion(value.get("orientation", [1.0, 0, 0, 0]), where).tolist(),
+        "velocity": array(value.get("velocity", [0.0] * 3), f"{where}.velocity", (3,)).tolist(),
+        "angular_velocity": array(
+            value.get("angular_velocity", [0.0] * 3), f"{where}.angular_velocity", (3,)
+        ).tolist(),
+        "fixed": flag(value.get("fixed", False), f"{where}.fixed"),
+    }
+    if "density" in value and "mass" in value:
+        raise Unprocessable(f"{where}: give density or mass, not both")
+    if "mass" in value:
+        out["mass"] = number(value["mass"], f"{where}.mass", 1e-300)
+    else:
+        out["density"] = number(value.get("density", 1.0), f"{where}.density", 1e-300)
+    return out
+
+
+def _plane(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise Unprocessable(f"{where} must be an object")
+    normal = array(value.get("normal", [0.0, 0.0, 1.0]), f"{where}.normal", (3,))
+    if not np.linalg.norm(normal) > 0:
+        raise Unprocessable(f"{where}.normal must not be zero")
+    return {
+        "point": array(value.get("point", [0.0] * 3), f"{where}.point", (3,)).tolist(),
+        "normal": normal.tolist(),
+        "size": number(value.get("size", 10.0), f"{where}.size", 1e-9),
+        "divisions": number(value.get("divisions", 16), f"{where}.divisions", 1, 256, True),
+    }
+
+
+def build_scene(spec: dict, tree_of, threads: int) -> Scene:
+    """The engine scene of a normalised specification; ``tree_of(mesh id)`` gives trees."""
+    scene = Scene(
+        gravity=spec["gravity"],
+        contact_model=LAWS[spec["contact_model"]["law"]](**_law_parameters(spec)),
+        scheme=spec["scheme"],
+        kernel=spec["kernel"],
+        max_halvings=spec["max_halvings"],
+        threads=threads,
+    )
+    bodies = spec["bodies"]
+    start = 0
+    while start < len(bodies):  # runs of like bodies in one call, in order
+        b = bodies[start]
+        key = (b["mesh"], b.get("density"), b.get("mass"), b["fixed"])
+        stop = start + 1
+        while stop < len(bodies):
+            c = bodies[stop]
+            if (c["mesh"], c.get("density"), c.get("mass"), c["fixed"]) != key:
+                break
+            stop += 1
+        run = bodies[start:stop]
+        scene.add_bodies(
+            tree_of(b["mesh"]),
+            [r["position"] for r in run],
+            orientations=[r["orientation"] for r in run],
+            velocities=[r["velocity"] for r in run],
+            angular_velocities=[r["angular_velocity"] for r in run],
+            density=b.get("density"),
+            mass=b.get("mass"),
+            fixed=b["fixed"],
+        )
+        start = stop
+    for p in spec["planes"]:
+        scene.add_plane(p["point"], p["normal"], p["size"], p["divisions"], spec["epsilon"])
+    return scene
+
+
+def pack_state(scene: Scene) -> bytes:
+    """The scene's state arrays and time as ``.npz`` bytes (no pickle)."""
+    buffer = io.BytesIO()
+    np.savez(buffer, time=np.float64(scene.time), **{k: getattr(scene, k) for k in STATE})
+    return buffer.getvalue()
+
+
+def restore_state(scene: Scene, blob: bytes) -> None:
+    with np.load(io.BytesIO(blob), allow_pickle=False) as data:
+        scene.set_state(**{k: data[k] for k in STATE})
+        scene.time = float(data["time"])
+
+
+def state_of(scene: Scene) -> dict:
+    return {k: getattr(scene, k).copy() for k in STATE}
+
+
+@dataclass
+class LiveScene:
+    """An engine scene in memory, with the lock that serialises its steps."""
+
+    scene: Scene
+    spec: dict
+    steps: int
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+class LiveScenes:
+    """Scenes kept in memory (least recently used dropped first; the store has them)."""
+
+    def __init__(self, store, threads: int, capacity: int = 64) -> None:
+        self.store, self.threads, self.capacity = store, threads, capacity
+        self._live: OrderedDict[tuple[str, str], LiveScene] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def add(self, owner: str, scene_id: str, live: LiveScene) -> None:
+        with self._lock:
+            self._live[(owner, scene_id)] = live
+            while len(self._live) > self.capacity:
+                self._live.popitem(last=False)
+
+    def get(self, owner: str, scene_id: str) -> LiveScene:
+        """The live scene (rebuilt from the store when not in memory), or 404."""
+        key = (owner, scene_id)
+        with self._lock:
+            if key in self._live:
+                self._live.move_to_end(key)
+                return self._live[key]
+        stored = self.store.scene(owner, scene_id)
+        if stored is None:
+            raise NotFound(f"no scene {scene_id!r}")
+        spec, blob, steps = stored
+        scene = build_scene(spec, self.store.tree, self.threads)
+        restore_state(scene, blob)
+        live = LiveScene(scene, spec, steps)
+        self.add(owner, scene_id, live)
+        return live
+
+    def drop(self, owner: str, scene_id: str) -> None:
+        with self._lock:
+            self._live.pop((owner, scene_id), None)
