@@ -1,0 +1,93 @@
+"""The asyncio client (httpx.AsyncClient): the same calls as :class:`~clients.Client`,
+awaited."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+import httpx
+
+from .base import ClientBase, scene_fields
+from .calls import Call, result, retry_delay
+from .errors import ServiceUnreachable
+from .models import MeshInfo, SceneState
+
+__all__ = ["AsyncClient", "AsyncRemoteScene"]
+
+
+class AsyncClient(ClientBase):
+    """``async with AsyncClient(url) as client: await client.upload_mesh(...)``."""
+
+    def __init__(self, base_url: str, *args, transport=None, **kwargs) -> None:
+        super().__init__(base_url, *args, **kwargs)
+        self._http = httpx.AsyncClient(
+            base_url=self.base_url, timeout=self.timeout, headers=self.headers, transport=transport
+        )
+
+    async def __aenter__(self) -> AsyncClient:
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def _send(self, call: Call) -> tuple[Any, int]:
+        attempt = 0
+        while True:
+            try:
+                response = await self._http.request(call.method, call.path, **self._arguments(call))
+            except httpx.TransportError as error:
+                if not self._retry(call, attempt, error):
+                    raise ServiceUnreachable(f"{call.method} {call.path}: {error!r}") from error
+                await asyncio.sleep(retry_delay(attempt, self.backoff))
+            else:
+                if not self._retry(call, attempt, None, response):
+                    return result(response), response.status_code
+                await asyncio.sleep(retry_delay(attempt, self.backoff, response))
+            attempt += 1
+
+    async def upload_mesh(self, source, epsilon=None, branching=None) -> MeshInfo:
+        payload, status = await self._send(self._upload(source, epsilon, branching))
+        return self._mesh(payload, status)
+
+    async def meshes(self) -> list[MeshInfo]:
+        payload, _ = await self._send(Call("GET", "/v1/meshes"))
+        return [self._mesh(m, 200) for m in payload["meshes"]]
+
+    async def delete_mesh(self, mesh: MeshInfo | str) -> None:
+        await self._send(Call("DELETE", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
+
+    async def contacts(self, pairs, kernel="hybrid", hierarchy=True, precision="float64"):
+        payload, _ = await self._send(self._contacts(pairs, kernel, hierarchy, precision))
+        return self._found(payload)
+
+    async def create_scene(self, bodies, **fields) -> AsyncRemoteScene:
+        """The fields of :meth:`Client.create_scene`, as keywords."""
+        payload, _ = await self._send(self._scene(bodies, scene_fields(**fields)))
+        return AsyncRemoteScene(self, payload["id"], self._state(payload))
+
+
+class AsyncRemoteScene:
+    def __init__(self, client: AsyncClient, scene_id: str, state: SceneState) -> None:
+        self.client, self.id, self.last = client, scene_id, state
+
+    async def step(self, n: int = 1, dt: float | None = None) -> SceneState:
+        payload, _ = await self.client._send(self.client._step(self.id, n, dt))
+        self.last = self.client._state(payload)
+        return self.last
+
+    async def state(self) -> SceneState:
+        payload, _ = await self.client._send(Call("GET", f"/v1/scenes/{self.id}"))
+        self.last = self.client._state(payload)
+        return self.last
+
+    async def set_state(self, **arrays) -> SceneState:
+        payload, _ = await self.client._send(self.client._set_state(self.id, arrays))
+        self.last = self.client._state(payload)
+        return self.last
+
+    async def delete(self) -> None:
+        await self.client._send(Call("DELETE", f"/v1/scenes/{self.id}"))

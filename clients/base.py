@@ -1,0 +1,104 @@
+"""What :class:`~clients.Client` and :class:`~clients.AsyncClient` share: settings,
+headers, request arguments, and turning answers into models."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import httpx
+
+from .calls import NEVER_SENT, RETRY_STATUS, Call, contacts_call, scene_call, upload_call
+from .codec import JSON, MSGPACK, encode
+from .errors import ClientError
+from .models import STATE, ContactResult, Contacts, MeshInfo, SceneState
+
+__all__ = ["ClientBase"]
+
+
+class ClientBase:
+    """``base_url``; ``api_key`` (bearer); ``timeout`` seconds per request; ``retries``
+    after the first try and ``backoff`` seconds (doubled per retry) for the calls that
+    may be retried (see :mod:`clients.calls`); ``wire``: "msgpack" (default) or "json"."""
+
+    def __init__(
+        self,
+        base_url: str,
+        api_key: str | None = None,
+        timeout: float = 60.0,
+        retries: int = 3,
+        backoff: float = 0.25,
+        wire: str = "msgpack",
+    ) -> None:
+        if wire not in ("msgpack", "json"):
+            raise ClientError(f"wire must be 'msgpack' or 'json', got {wire!r}")
+        self.base_url, self.timeout = base_url.rstrip("/"), timeout
+        self.retries, self.backoff = int(retries), float(backoff)
+        self.media = MSGPACK if wire == "msgpack" else JSON
+        self.headers = {"accept": self.media}
+        if api_key:
+            self.headers["authorization"] = f"Bearer {api_key}"
+
+    def _arguments(self, call: Call) -> dict:
+        if call.files is not None:
+            return {"files": call.files, "data": call.data}
+        if call.payload is None:
+            return {}
+        return {
+            "content": encode(call.payload, self.media),
+            "headers": {"content-type": self.media},
+        }
+
+    def _retry(self, call: Call, attempt: int, error: Exception | None, response=None) -> bool:
+        """Whether to try ``call`` again after this failure."""
+        if attempt >= self.retries:
+            return False
+        if response is not None:
+            return response.status_code in RETRY_STATUS
+        return isinstance(error, NEVER_SENT) or (
+            call.repeatable and isinstance(error, httpx.TransportError)
+        )
+
+    # ---------------------------------------------------------------- calls
+    @staticmethod
+    def _upload(source, epsilon, branching) -> Call:
+        return upload_call(source, epsilon, branching)
+
+    @staticmethod
+    def _contacts(pairs, kernel, hierarchy, precision) -> Call:
+        return contacts_call(pairs, kernel, hierarchy, precision)
+
+    @staticmethod
+    def _scene(bodies, fields) -> Call:
+        return scene_call(bodies, **fields)
+
+    @staticmethod
+    def _step(scene_id: str, n: int, dt: float | None) -> Call:
+        payload = {"steps": int(n), **({"dt": float(dt)} if dt is not None else {})}
+        return Call("POST", f"/v1/scenes/{scene_id}/step", payload=payload, repeatable=False)
+
+    @staticmethod
+    def _set_state(scene_id: str, arrays: dict) -> Call:
+        payload = {k: v for k, v in arrays.items() if v is not None}
+        unknown = set(payload) - set(STATE)
+        if unknown:
+            raise ClientError(f"unknown state fields {sorted(unknown)}; expected {list(STATE)}")
+        return Call("PUT", f"/v1/scenes/{scene_id}/state", payload=payload)
+
+    # --------------------------------------------------------------- models
+    @staticmethod
+    def _mesh(payload: dict, status: int) -> MeshInfo:
+        return MeshInfo.from_payload(payload, created=status == 201)
+
+    @staticmethod
+    def _found(payload: dict) -> Contacts:
+        results = [ContactResult.from_payload(r) for r in payload["results"]]
+        return Contacts(results, payload["stats"])
+
+    @staticmethod
+    def _state(payload: dict) -> SceneState:
+        return SceneState.from_payload(payload)
+
+
+def scene_fields(**fields: Any) -> dict:
+    """The optional fields of a scene, without the unset ones."""
+    return {k: v for k, v in fields.items() if v is not None}

@@ -1,0 +1,138 @@
+"""Requests the clients send and how they read the answers, shared by :class:`Client`
+and :class:`AsyncClient` (which differ only in how they wait).
+
+Retries: a request that never reached the server (connection refused or timed out while
+connecting) and a 429 or 503 answer are retried with exponential backoff, honouring
+``Retry-After``; a connection lost after the request was sent is retried only for calls
+that are safe to repeat (reads, state overwrites, deletes, content-addressed uploads,
+contact queries) — never for creating a scene or stepping one, which would then happen
+twice.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from .codec import decode
+from .errors import ProblemError
+from .models import MeshInfo
+
+__all__ = ["Call", "contacts_call", "retry_delay", "scene_call", "upload_call"]
+
+RETRY_STATUS = (429, 503)
+NEVER_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout)
+
+
+@dataclass
+class Call:
+    method: str
+    path: str
+    payload: Any = None
+    files: dict | None = None
+    data: dict | None = None
+    repeatable: bool = True  # safe to send again after a connection lost mid-request
+
+
+def mesh_id(value) -> str:
+    return value.id if isinstance(value, MeshInfo) else str(value)
+
+
+def upload_call(source, epsilon: float | None, branching: int | None) -> Call:
+    """``source``: a path to a mesh file, a ``trimesh.Trimesh`` (anything with
+    ``vertices`` and ``faces``) or a ``(vertices, faces)`` pair."""
+    options = {k: v for k, v in (("epsilon", epsilon), ("branching", branching)) if v is not None}
+    if isinstance(source, str | os.PathLike):
+        path = Path(source)
+        data = {k: str(v) for k, v in options.items()}
+        return Call("POST", "/v1/meshes", files={"file": (path.name, path.read_bytes())}, data=data)
+    if hasattr(source, "vertices") and hasattr(source, "faces"):
+        vertices, faces = source.vertices, source.faces
+    else:
+        vertices, faces = source
+    payload = {
+        "vertices": np.ascontiguousarray(vertices, np.float64),
+        "faces": np.ascontiguousarray(faces, np.int64),
+        **options,
+    }
+    return Call("POST", "/v1/meshes", payload=payload)
+
+
+def pose_payload(pose) -> dict:
+    """A pose as ``{"position", "orientation"}``: from that dict, a ``(position,
+    orientation)`` pair, or a position alone (identity orientation)."""
+    if pose is None:
+        return {"position": [0.0, 0.0, 0.0], "orientation": [1.0, 0.0, 0.0, 0.0]}
+    if isinstance(pose, dict):
+        return pose
+    parts = list(pose)
+    if len(parts) == 2 and np.size(parts[0]) == 3:
+        return {"position": np.asarray(parts[0], float), "orientation": np.asarray(parts[1], float)}
+    return {"position": np.asarray(parts, float), "orientation": [1.0, 0.0, 0.0, 0.0]}
+
+
+def contacts_call(pairs, kernel: str, hierarchy: bool, precision: str) -> Call:
+    """``pairs``: ``(a, pose_a, b, pose_b)`` tuples or ``{"a", "pose_a", "b", "pose_b"}``."""
+    items = []
+    for pair in pairs:
+        if isinstance(pair, dict):
+            a, pose_a, b, pose_b = (pair.get(k) for k in ("a", "pose_a", "b", "pose_b"))
+        else:
+            a, pose_a, b, pose_b = pair
+        items.append(
+            {
+                "a": mesh_id(a),
+                "pose_a": pose_payload(pose_a),
+                "b": mesh_id(b),
+                "pose_b": pose_payload(pose_b),
+            }
+        )
+    payload = {"pairs": items, "kernel": kernel, "hierarchy": hierarchy, "precision": precision}
+    return Call("POST", "/v1/contacts", payload=payload)
+
+
+def scene_call(bodies, **fields) -> Call:
+    """``POST /v1/scenes``; ``bodies`` may name meshes by :class:`MeshInfo` or id."""
+    out = []
+    for body in bodies:
+        body = dict(body)
+        body["mesh"] = mesh_id(body["mesh"])
+        out.append(body)
+    payload = {"bodies": out, **{k: v for k, v in fields.items() if v is not None}}
+    return Call("POST", "/v1/scenes", payload=payload, repeatable=False)
+
+
+def retry_delay(attempt: int, backoff: float, response: httpx.Response | None = None) -> float:
+    """Seconds before retry ``attempt`` (0-based): ``Retry-After`` when the server gave
+    one (capped at 60 s), else ``backoff``·2^attempt."""
+    if response is not None:
+        value = response.headers.get("retry-after", "")
+        try:
+            return min(max(float(value), 0.0), 60.0)
+        except ValueError:
+            pass
+    return backoff * 2**attempt
+
+
+def result(response: httpx.Response) -> Any:
+    """The decoded body of a success, or the server's problem as :class:`ProblemError`."""
+    media = response.headers.get("content-type", "")
+    if response.is_success:
+        return decode(response.content, media) if response.content else None
+    try:
+        problem = decode(response.content, media) if response.content else {}
+    except ValueError:
+        problem = {}
+    if not isinstance(problem, dict):
+        problem = {}
+    raise ProblemError(
+        response.status_code,
+        str(problem.get("title", response.reason_phrase)),
+        str(problem.get("detail", response.text[:500])),
+        problem,
+    )

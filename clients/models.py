@@ -1,0 +1,103 @@
+"""What the client returns: numpy arrays, not dicts of lists."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["ContactResult", "Contacts", "MeshInfo", "SceneState"]
+
+STATE = ("positions", "orientations", "velocities", "angular_velocities")
+
+
+@dataclass(frozen=True)
+class MeshInfo:
+    """An uploaded mesh: ``id`` for scenes and contact queries, and its facts."""
+
+    id: str
+    triangles: int
+    vertices: int
+    epsilon: float
+    levels: int
+    bounds: np.ndarray  # (2, 3) min and max corner
+    watertight: bool
+    volume: float | None
+    created: bool  # False when the service had this mesh already
+    facts: dict = field(repr=False, default_factory=dict)
+
+    @classmethod
+    def from_payload(cls, payload: dict, created: bool) -> MeshInfo:
+        return cls(
+            id=payload["id"],
+            triangles=int(payload["triangles"]),
+            vertices=int(payload["vertices"]),
+            epsilon=float(payload["epsilon"]),
+            levels=int(payload["levels"]),
+            bounds=np.asarray(payload["bounds"], float),
+            watertight=bool(payload["watertight"]),
+            volume=payload.get("volume"),
+            created=created,
+            facts=payload,
+        )
+
+
+@dataclass(frozen=True)
+class ContactResult:
+    """Contacts of one body pair (world frame): ``points (k, 3)``, ``normals (k, 3)``
+    (unit, from A to B), ``overlaps (k,)`` and triangle ``pairs (m, 2)`` in contact."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    overlaps: np.ndarray
+    pairs: np.ndarray
+
+    @classmethod
+    def from_payload(cls, payload: dict) -> ContactResult:
+        return cls(
+            np.asarray(payload["points"], float).reshape(-1, 3),
+            np.asarray(payload["normals"], float).reshape(-1, 3),
+            np.asarray(payload["overlaps"], float).reshape(-1),
+            np.asarray(payload["pairs"], np.int64).reshape(-1, 2),
+        )
+
+
+@dataclass(frozen=True)
+class Contacts:
+    """``results`` per queried pair, in order, and the summed counters ``stats``."""
+
+    results: list[ContactResult]
+    stats: dict
+
+    def __len__(self) -> int:
+        return len(self.results)
+
+    def __getitem__(self, i: int) -> ContactResult:
+        return self.results[i]
+
+
+@dataclass(frozen=True)
+class SceneState:
+    """A scene's state: ``positions (n, 3)``, ``orientations (n, 4)`` (w, x, y, z),
+    ``velocities``, ``angular_velocities (n, 3)`` (rows: bodies, then planes), its
+    ``time`` and ``steps`` so far, and the statistics of the steps just taken."""
+
+    positions: np.ndarray
+    orientations: np.ndarray
+    velocities: np.ndarray
+    angular_velocities: np.ndarray
+    time: float
+    steps: int
+    stats: list = field(default_factory=list)
+
+    @classmethod
+    def from_payload(cls, payload: dict) -> SceneState:
+        state = payload["state"]
+        widths = {"orientations": 4}
+        arrays = {k: np.asarray(state[k], float).reshape(-1, widths.get(k, 3)) for k in STATE}
+        return cls(
+            **arrays,
+            time=float(payload["time"]),
+            steps=int(payload["steps"]),
+            stats=list(payload.get("stats", [])),
+        )

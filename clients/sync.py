@@ -1,0 +1,141 @@
+"""The blocking client (httpx)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import httpx
+
+from .base import ClientBase, scene_fields
+from .calls import Call, result, retry_delay
+from .errors import ServiceUnreachable
+from .models import Contacts, MeshInfo, SceneState
+
+__all__ = ["Client", "RemoteScene"]
+
+
+class Client(ClientBase):
+    """A connection to an mrdem service; use as a context manager (or call :meth:`close`).
+
+    >>> with Client("http://127.0.0.1:8000") as client:   # doctest: +SKIP
+    ...     ball = client.upload_mesh("ball.stl", epsilon=0.01)
+    """
+
+    def __init__(self, base_url: str, *args, transport=None, **kwargs) -> None:
+        super().__init__(base_url, *args, **kwargs)
+        self._http = httpx.Client(
+            base_url=self.base_url, timeout=self.timeout, headers=self.headers, transport=transport
+        )
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._http.close()
+
+    def _send(self, call: Call) -> tuple[Any, int]:
+        attempt = 0
+        while True:
+            try:
+                response = self._http.request(call.method, call.path, **self._arguments(call))
+            except httpx.TransportError as error:
+                if not self._retry(call, attempt, error):
+                    raise ServiceUnreachable(f"{call.method} {call.path}: {error!r}") from error
+                time.sleep(retry_delay(attempt, self.backoff))
+            else:
+                if not self._retry(call, attempt, None, response):
+                    return result(response), response.status_code
+                time.sleep(retry_delay(attempt, self.backoff, response))
+            attempt += 1
+
+    # ------------------------------------------------------------------ API
+    def upload_mesh(self, source, epsilon: float | None = None, branching: int | None = None):
+        """Upload a mesh file path, a ``trimesh.Trimesh`` or ``(vertices, faces)``;
+        returns its :class:`MeshInfo` (``created`` False when the service had it)."""
+        payload, status = self._send(self._upload(source, epsilon, branching))
+        return self._mesh(payload, status)
+
+    def mesh(self, mesh: MeshInfo | str) -> MeshInfo:
+        payload, status = self._send(Call("GET", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
+        return self._mesh(payload, 200)
+
+    def meshes(self) -> list[MeshInfo]:
+        payload, _ = self._send(Call("GET", "/v1/meshes"))
+        return [self._mesh(m, 200) for m in payload["meshes"]]
+
+    def delete_mesh(self, mesh: MeshInfo | str) -> None:
+        self._send(Call("DELETE", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
+
+    def contacts(
+        self, pairs, kernel: str = "hybrid", hierarchy: bool = True, precision: str = "float64"
+    ) -> Contacts:
+        """Contacts of ``(a, pose_a, b, pose_b)`` pairs; a pose is ``(position,
+        orientation)``, a position, or a dict."""
+        payload, _ = self._send(self._contacts(pairs, kernel, hierarchy, precision))
+        return self._found(payload)
+
+    def create_scene(
+        self,
+        bodies,
+        planes=None,
+        gravity=None,
+        dt: float | None = None,
+        scheme: str | None = None,
+        epsilon: float | None = None,
+        contact_model: dict | None = None,
+        kernel: str | None = None,
+        max_halvings: int | None = None,
+    ) -> RemoteScene:
+        """A scene with the fields of ``POST /v1/scenes``; returns its handle."""
+        fields = scene_fields(
+            planes=planes,
+            gravity=gravity,
+            dt=dt,
+            scheme=scheme,
+            epsilon=epsilon,
+            contact_model=contact_model,
+            kernel=kernel,
+            max_halvings=max_halvings,
+        )
+        payload, _ = self._send(self._scene(bodies, fields))
+        return RemoteScene(self, payload["id"], self._state(payload))
+
+
+class RemoteScene:
+    """A scene on the service: ``step``, ``state``, ``set_state``, ``delete``."""
+
+    def __init__(self, client: Client, scene_id: str, state: SceneState) -> None:
+        self.client, self.id, self.last = client, scene_id, state
+
+    def step(self, n: int = 1, dt: float | None = None) -> SceneState:
+        """Advance ``n`` steps (of the scene's dt unless given); the new state, with the
+        statistics of each step in ``stats``."""
+        payload, _ = self.client._send(self.client._step(self.id, n, dt))
+        self.last = self.client._state(payload)
+        return self.last
+
+    @property
+    def state(self) -> SceneState:
+        payload, _ = self.client._send(Call("GET", f"/v1/scenes/{self.id}"))
+        self.last = self.client._state(payload)
+        return self.last
+
+    def set_state(
+        self, positions=None, orientations=None, velocities=None, angular_velocities=None
+    ) -> SceneState:
+        arrays = {
+            "positions": positions,
+            "orientations": orientations,
+            "velocities": velocities,
+            "angular_velocities": angular_velocities,
+        }
+        payload, _ = self.client._send(self.client._set_state(self.id, arrays))
+        self.last = self.client._state(payload)
+        return self.last
+
+    def delete(self) -> None:
+        self.client._send(Call("DELETE", f"/v1/scenes/{self.id}"))
