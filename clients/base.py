@@ -10,7 +10,7 @@ import httpx
 from .calls import NEVER_SENT, RETRY_STATUS, Call, contacts_call, scene_call, upload_call
 from .codec import JSON, MSGPACK, encode
 from .errors import ClientError
-from .models import STATE, ContactResult, Contacts, MeshInfo, SceneState
+from .models import STATE, Contacts, MeshInfo, SceneState
 
 __all__ = ["ClientBase"]
 
@@ -91,8 +91,7 @@ class ClientBase:
 
     @staticmethod
     def _found(payload: dict) -> Contacts:
-        results = [ContactResult.from_payload(r) for r in payload["results"]]
-        return Contacts(results, payload["stats"])
+        return Contacts.from_payload(payload)
 
     @staticmethod
     def _state(payload: dict) -> SceneState:

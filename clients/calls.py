@@ -77,22 +77,30 @@ def pose_payload(pose) -> dict:
 
 
 def contacts_call(pairs, kernel: str, hierarchy: bool, precision: str) -> Call:
-    """``pairs``: ``(a, pose_a, b, pose_b)`` tuples or ``{"a", "pose_a", "b", "pose_b"}``."""
-    items = []
+    """``pairs``: ``(a, pose_a, b, pose_b)`` tuples or ``{"a", "pose_a", "b", "pose_b"}``;
+    sent in the service's columnar layout (one array per field)."""
+    meshes: dict[str, int] = {}
+    index = {"a": [], "b": []}
+    poses = {k: [] for k in ("position_a", "orientation_a", "position_b", "orientation_b")}
     for pair in pairs:
         if isinstance(pair, dict):
-            a, pose_a, b, pose_b = (pair.get(k) for k in ("a", "pose_a", "b", "pose_b"))
+            items = [pair.get(k) for k in ("a", "pose_a", "b", "pose_b")]
         else:
-            a, pose_a, b, pose_b = pair
-        items.append(
-            {
-                "a": mesh_id(a),
-                "pose_a": pose_payload(pose_a),
-                "b": mesh_id(b),
-                "pose_b": pose_payload(pose_b),
-            }
-        )
-    payload = {"pairs": items, "kernel": kernel, "hierarchy": hierarchy, "precision": precision}
+            items = list(pair)
+        for side, mesh, pose in (("a", items[0], items[1]), ("b", items[2], items[3])):
+            index[side].append(meshes.setdefault(mesh_id(mesh), len(meshes)))
+            p = pose_payload(pose)
+            poses[f"position_{side}"].append(p["position"])
+            poses[f"orientation_{side}"].append(p["orientation"])
+    payload = {
+        "meshes": list(meshes),
+        "a": np.array(index["a"], np.int64),
+        "b": np.array(index["b"], np.int64),
+        **{k: np.array(v, np.float64).reshape(len(v), -1) for k, v in poses.items()},
+        "kernel": kernel,
+        "hierarchy": hierarchy,
+        "precision": precision,
+    }
     return Call("POST", "/v1/contacts", payload=payload)
 
 

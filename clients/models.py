@@ -64,16 +64,48 @@ class ContactResult:
 
 @dataclass(frozen=True)
 class Contacts:
-    """``results`` per queried pair, in order, and the summed counters ``stats``."""
+    """Contacts of every queried pair, in order: ``contacts[q]`` is a
+    :class:`ContactResult`. The same data as flat arrays (CSR): pair q owns rows
+    ``offsets[q]:offsets[q + 1]`` of ``points (c, 3)``, ``normals (c, 3)``, ``overlaps
+    (c,)`` and rows ``pair_offsets[q]:pair_offsets[q + 1]`` of ``pairs (m, 2)``; ``stats``
+    the summed counters."""
 
-    results: list[ContactResult]
+    offsets: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    overlaps: np.ndarray
+    pair_offsets: np.ndarray
+    pairs: np.ndarray
     stats: dict
 
-    def __len__(self) -> int:
-        return len(self.results)
+    @classmethod
+    def from_payload(cls, payload: dict) -> Contacts:
+        return cls(
+            np.asarray(payload["offsets"], np.int64),
+            np.asarray(payload["points"], float).reshape(-1, 3),
+            np.asarray(payload["normals"], float).reshape(-1, 3),
+            np.asarray(payload["overlaps"], float).reshape(-1),
+            np.asarray(payload["pair_offsets"], np.int64),
+            np.asarray(payload["pairs"], np.int64).reshape(-1, 2),
+            payload["stats"],
+        )
 
-    def __getitem__(self, i: int) -> ContactResult:
-        return self.results[i]
+    def __len__(self) -> int:
+        return len(self.offsets) - 1
+
+    def __getitem__(self, q: int) -> ContactResult:
+        if not -len(self) <= q < len(self):
+            raise IndexError(q)
+        q %= len(self)
+        c0, c1 = self.offsets[q], self.offsets[q + 1]
+        p0, p1 = self.pair_offsets[q], self.pair_offsets[q + 1]
+        return ContactResult(
+            self.points[c0:c1], self.normals[c0:c1], self.overlaps[c0:c1], self.pairs[p0:p1]
+        )
+
+    @property
+    def results(self) -> list[ContactResult]:
+        return [self[q] for q in range(len(self))]
 
 
 @dataclass(frozen=True)

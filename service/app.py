@@ -11,6 +11,7 @@ from fastapi import FastAPI, Request
 
 import engine
 
+from .banks import BankCache
 from .codecs import BodyLimit
 from .compute import EngineRunner
 from .errors import install_handlers
@@ -34,6 +35,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI):
         app.state.store = Store(settings.data_dir, settings.tree_cache)
         app.state.scenes = LiveScenes(app.state.store, settings.engine_threads)
+        app.state.banks = BankCache(app.state.store)
         if settings.warmup:
             threading.Thread(target=_warm, args=(app.state,), name="warmup", daemon=True).start()
         else:

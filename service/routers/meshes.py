@@ -88,6 +88,7 @@ async def get_mesh(mesh_id: str, request: Request, owner: str = Depends(owner_of
 async def delete_mesh(mesh_id: str, request: Request, owner: str = Depends(owner_of)):
     if not request.app.state.store.delete_mesh(owner, mesh_id):
         raise NotFound(f"no mesh {mesh_id!r}")
+    request.app.state.banks.forget(mesh_id)
     return Response(status_code=204)
 
 

@@ -283,7 +283,44 @@ def _contact_cases(mesh_id):
             422,
             "precision must be",
         ),
+        ("columnar: no meshes", {**_columns(mesh_id), "meshes": []}, 422, "meshes must be"),
+        (
+            "columnar: index outside meshes",
+            {**_columns(mesh_id), "b": [0, 3]},
+            422,
+            "b holds indices outside meshes",
+        ),
+        (
+            "columnar: rows differ",
+            {**_columns(mesh_id), "position_b": [[0, 0, 0]]},
+            422,
+            "position_b must have shape (2, 3)",
+        ),
+        (
+            "columnar: non-unit row",
+            {**_columns(mesh_id), "orientation_a": [[1, 0, 0, 0], [0, 0, 0, 0.5]]},
+            422,
+            "orientation_a[1] must be a unit quaternion",
+        ),
+        (
+            "columnar: missing field",
+            {k: v for k, v in _columns(mesh_id).items() if k != "orientation_b"},
+            422,
+            "missing 'orientation_b'",
+        ),
     ]
+
+
+def _columns(mesh_id):
+    return {
+        "meshes": [mesh_id],
+        "a": [0, 0],
+        "b": [0, 0],
+        "position_a": [[0, 0, 0], [0, 0, 0]],
+        "orientation_a": [[1, 0, 0, 0], [1, 0, 0, 0]],
+        "position_b": [[0.5, 0, 0], [3, 0, 0]],
+        "orientation_b": [[1, 0, 0, 0], [1, 0, 0, 0]],
+    }
 
 
 @pytest.mark.parametrize("case", MESH_CASES, ids=[c[0] for c in MESH_CASES])
@@ -299,6 +336,8 @@ def test_bad_contact_requests(http, mesh_id):
         response = http.post("/v1/contacts", content=text.encode(), headers=JSON_HEADERS)
         assert_problem(response, status, words)
     assert http.post("/v1/contacts", json={"pairs": [_pair(mesh_id)]}).status_code == 200
+    columnar = http.post("/v1/contacts", json=_columns(mesh_id)).json()
+    assert columnar["offsets"][0] == 0 and len(columnar["offsets"]) == 3
 
 
 def test_surrogate_level_out_of_range(http, mesh_id):
