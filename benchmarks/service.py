@@ -87,15 +87,22 @@ def batch_overhead(url: str, mesh, repeats: int) -> dict:
     origin, identity = np.zeros((len(pairs), 3)), np.tile([1.0, 0, 0, 0], (len(pairs), 1))
     position = np.array([p for p, _ in pairs])
     orientation = np.array([q for _, q in pairs])
-    runs = {"in-process": [], "find_contacts_batch": [], "msgpack": [], "json": []}
+    runs = {k: [] for k in ("in-process", "find_contacts_batch", "msgpack", "json")}
+    runs["msgpack, pair tuples"] = []
     calls = {
         # the fastest in-process call: a prebuilt bank, arrays in hand (what the service runs)
         "in-process": lambda: bank.find_contacts(
             index, origin, identity, index, position, orientation
         ),
         "find_contacts_batch": lambda: find_contacts_batch(queries),
-        "msgpack": lambda: clients["msgpack"].contacts(request),
-        "json": lambda: clients["json"].contacts(request),
+        # the same arrays through HTTP (columnar request, CSR answer)
+        "msgpack": lambda: clients["msgpack"].find_contacts(
+            [info], index, origin, identity, index, position, orientation
+        ),
+        "json": lambda: clients["json"].find_contacts(
+            [info], index, origin, identity, index, position, orientation
+        ),
+        "msgpack, pair tuples": lambda: clients["msgpack"].contacts(request),
     }
     for fn in calls.values():
         fn()  # warm: trees cached, connections open

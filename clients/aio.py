@@ -11,7 +11,7 @@ import httpx
 from .base import ClientBase, scene_fields
 from .calls import Call, result, retry_delay
 from .errors import ServiceUnreachable
-from .models import MeshInfo, SceneState
+from .models import Contacts, MeshInfo, SceneState
 
 __all__ = ["AsyncClient", "AsyncRemoteScene"]
 
@@ -62,6 +62,23 @@ class AsyncClient(ClientBase):
 
     async def contacts(self, pairs, kernel="hybrid", hierarchy=True, precision="float64"):
         payload, _ = await self._send(self._contacts(pairs, kernel, hierarchy, precision))
+        return self._found(payload)
+
+    async def find_contacts(self, meshes, a, pa, qa, b, pb, qb, **options) -> Contacts:
+        """:meth:`Client.find_contacts`, awaited (options: kernel, hierarchy, precision)."""
+        call = self._columnar(
+            meshes,
+            a,
+            pa,
+            qa,
+            b,
+            pb,
+            qb,
+            options.get("kernel", "hybrid"),
+            options.get("hierarchy", True),
+            options.get("precision", "float64"),
+        )
+        payload, _ = await self._send(call)
         return self._found(payload)
 
     async def create_scene(self, bodies, **fields) -> AsyncRemoteScene:

@@ -7,7 +7,15 @@ from typing import Any
 
 import httpx
 
-from .calls import NEVER_SENT, RETRY_STATUS, Call, contacts_call, scene_call, upload_call
+from .calls import (
+    NEVER_SENT,
+    RETRY_STATUS,
+    Call,
+    columnar_call,
+    contacts_call,
+    scene_call,
+    upload_call,
+)
 from .codec import JSON, MSGPACK, encode
 from .errors import ClientError
 from .models import STATE, Contacts, MeshInfo, SceneState
@@ -66,6 +74,11 @@ class ClientBase:
     @staticmethod
     def _contacts(pairs, kernel, hierarchy, precision) -> Call:
         return contacts_call(pairs, kernel, hierarchy, precision)
+
+    @staticmethod
+    def _columnar(meshes, a, pa, qa, b, pb, qb, kernel, hierarchy, precision) -> Call:
+        options = {"kernel": kernel, "hierarchy": hierarchy, "precision": precision}
+        return columnar_call(meshes, a, pa, qa, b, pb, qb, options)
 
     @staticmethod
     def _scene(bodies, fields) -> Call:

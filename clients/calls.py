@@ -23,7 +23,14 @@ from .codec import decode
 from .errors import ProblemError
 from .models import MeshInfo
 
-__all__ = ["Call", "contacts_call", "retry_delay", "scene_call", "upload_call"]
+__all__ = [
+    "Call",
+    "columnar_call",
+    "contacts_call",
+    "retry_delay",
+    "scene_call",
+    "upload_call",
+]
 
 RETRY_STATUS = (429, 503)
 NEVER_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout)
@@ -100,6 +107,21 @@ def contacts_call(pairs, kernel: str, hierarchy: bool, precision: str) -> Call:
         "kernel": kernel,
         "hierarchy": hierarchy,
         "precision": precision,
+    }
+    return Call("POST", "/v1/contacts", payload=payload)
+
+
+def columnar_call(meshes, a, position_a, orientation_a, b, position_b, orientation_b, options):
+    """The columnar contacts request from arrays (no per-pair Python work)."""
+    payload = {
+        "meshes": [mesh_id(m) for m in meshes],
+        "a": np.ascontiguousarray(a, np.int64),
+        "b": np.ascontiguousarray(b, np.int64),
+        "position_a": np.ascontiguousarray(position_a, np.float64),
+        "orientation_a": np.ascontiguousarray(orientation_a, np.float64),
+        "position_b": np.ascontiguousarray(position_b, np.float64),
+        "orientation_b": np.ascontiguousarray(orientation_b, np.float64),
+        **options,
     }
     return Call("POST", "/v1/contacts", payload=payload)
 

@@ -78,6 +78,37 @@ class Client(ClientBase):
         payload, _ = self._send(self._contacts(pairs, kernel, hierarchy, precision))
         return self._found(payload)
 
+    def find_contacts(
+        self,
+        meshes,
+        a,
+        position_a,
+        orientation_a,
+        b,
+        position_b,
+        orientation_b,
+        kernel: str = "hybrid",
+        hierarchy: bool = True,
+        precision: str = "float64",
+    ) -> Contacts:
+        """Contacts of ``n`` pairs given as arrays: ``a, b (n,)`` indices into ``meshes``
+        (ids or :class:`MeshInfo`), ``position_* (n, 3)``, ``orientation_* (n, 4)`` unit
+        quaternions (w, x, y, z) — :meth:`contacts` without a Python loop over the pairs."""
+        call = self._columnar(
+            meshes,
+            a,
+            position_a,
+            orientation_a,
+            b,
+            position_b,
+            orientation_b,
+            kernel,
+            hierarchy,
+            precision,
+        )
+        payload, _ = self._send(call)
+        return self._found(payload)
+
     def create_scene(
         self,
         bodies,

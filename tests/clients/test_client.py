@@ -102,3 +102,21 @@ def test_the_async_client(service):
     found, state = asyncio.run(main())
     assert len(found[0].points) > 0
     np.testing.assert_allclose(state.positions[0], [0.01, 0.0, 0.0], atol=1e-12)
+
+
+def test_columnar_contacts_equal_the_pairwise_call(client):
+    mesh = shapes.icosphere(2, radius=0.5)
+    info = client.upload_mesh((mesh.vertices, mesh.faces), epsilon=0.02)
+    rng = np.random.default_rng(3)
+    n = 20
+    direction = rng.normal(size=(n, 3))
+    position = direction / np.linalg.norm(direction, axis=1)[:, None] * 1.0
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    zero, identity = np.zeros((n, 3)), np.tile([1.0, 0, 0, 0], (n, 1))
+    index = np.zeros(n, np.int64)
+    columns = client.find_contacts([info], index, zero, identity, index, position, q)
+    pairwise = client.contacts([(info, None, info, (position[i], q[i])) for i in range(n)])
+    assert len(columns) == len(pairwise) == n and len(columns.points) > 0
+    for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
+        np.testing.assert_array_equal(getattr(columns, name), getattr(pairwise, name))
