@@ -1,9 +1,14 @@
-"""``mrdem`` command line: ``serve`` here; ``info`` and ``warmup`` from the engine."""
+"""``mrdem`` command line: ``serve``, ``demo`` (the client program ``clients.demo``, run as
+a separate process), ``bench`` (the benchmark scripts); ``info`` and ``warmup`` from the
+engine."""
 
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
+import time
+from pathlib import Path
 
 from engine import cli as engine_cli
 
@@ -28,6 +33,52 @@ def serve(settings: Settings | None = None) -> None:
     )
 
 
+BENCHMARKS = ("kernels", "trees", "surrogates", "lemma1", "broadphase", "dynamics", "service")
+QUICK = ("kernels", "dynamics", "service")  # the scripts that take --quick
+
+
+def bench(names: list[str], quick: bool, root: Path | None = None) -> int:
+    """Run ``benchmarks/<name>.py`` of a source checkout one after another, each one's
+    output into ``bench-results/<name>.log``, with a progress bar; returns the number of
+    scripts that failed."""
+    root = root or Path(__file__).resolve().parents[1]
+    folder = root / "benchmarks"
+    if not folder.is_dir():
+        print("mrdem bench needs a source checkout (benchmarks/ next to service/)")
+        return 1
+    (root / "bench-results").mkdir(exist_ok=True)
+    failed = 0
+    begin = time.perf_counter()
+    for i, name in enumerate(names):
+        command = [sys.executable, str(folder / f"{name}.py")]
+        if quick and name in QUICK:
+            command.append("--quick")
+        log = root / "bench-results" / f"{name}.log"
+        start = time.perf_counter()
+        with open(log, "wb") as out:
+            proc = subprocess.Popen(command, cwd=root, stdout=out, stderr=subprocess.STDOUT)
+            while proc.poll() is None:
+                _progress(i, len(names), name, time.perf_counter() - start)
+                time.sleep(0.5)
+        failed += proc.returncode != 0
+        status = "ok" if proc.returncode == 0 else f"FAILED ({proc.returncode})"
+        print(
+            f"\r{_bar(i + 1, len(names))} {name}: {status} in"
+            f" {time.perf_counter() - start:.0f} s -> {log}" + " " * 10
+        )
+    print(f"{len(names) - failed}/{len(names)} benchmarks in {time.perf_counter() - begin:.0f} s")
+    return failed
+
+
+def _bar(done: int, total: int, width: int = 24) -> str:
+    filled = round(width * done / total)
+    return f"[{'#' * filled}{'-' * (width - filled)}] {done}/{total}"
+
+
+def _progress(done: int, total: int, name: str, seconds: float) -> None:
+    print(f"\r{_bar(done, total)} {name} ({seconds:.0f} s)", end="", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mrdem", description="mrdem: multiresolution DEM")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -37,9 +88,25 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--data-dir", help="overrides MRDEM_DATA_DIR")
     sub.add_parser("info", help="versions, CPU and kernel cache")
     sub.add_parser("warmup", help="compile every kernel (or load it from the cache)")
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    if args.command != "serve":
+    sub.add_parser(
+        "demo",
+        help="particle on a plane through the client: CSV, PNG and VTK (see --help)",
+        add_help=False,
+    )
+    marks = sub.add_parser("bench", help="run the benchmarks (source checkout) with progress")
+    marks.add_argument("names", nargs="*", help=f"any of {', '.join(BENCHMARKS)} (all)")
+    marks.add_argument("--quick", action="store_true", help="shorter runs where supported")
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["demo"]:  # a client program of its own: service never imports clients
+        return subprocess.call([sys.executable, "-m", "clients.demo", *argv[1:]])
+    args = parser.parse_args(argv)
+    if args.command in ("info", "warmup"):
         return engine_cli.main([args.command])
+    if args.command == "bench":
+        unknown = sorted(set(args.names) - set(BENCHMARKS))
+        if unknown:
+            parser.error(f"unknown benchmarks {unknown}; choose from {list(BENCHMARKS)}")
+        return bench(list(args.names) or list(BENCHMARKS), args.quick)
     given = {"host": args.host, "port": args.port, "data_dir": args.data_dir}
     serve(Settings(**{k: v for k, v in given.items() if v is not None}))
     return 0
