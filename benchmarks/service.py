@@ -194,7 +194,7 @@ def main() -> None:
         proc, url = start_server(Path(tmp) / "data")
         try:
             results = {
-                "batch": batch_overhead(url, mesh, 3 if args.quick else 9),
+                "batch": batch_overhead(url, mesh, 3 if args.quick else 25),
                 "concurrency": concurrency(url, mesh, 3.0 if args.quick else 15.0),
                 "cpu_count": os.cpu_count(),
             }
