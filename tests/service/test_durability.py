@@ -78,3 +78,21 @@ def test_a_key_sees_only_its_own_meshes(keyed):
         assert beta.get(f"/v1/meshes/{mesh_id}").status_code == 200
         assert beta.post("/v1/contacts", json={"pairs": [pair]}).status_code == 200
         assert alpha.get("/v1/meshes").json()["meshes"] == []
+
+
+def test_a_key_sees_only_its_own_scenes(keyed):
+    alpha = httpx.Client(base_url=keyed.url, headers={"authorization": "Bearer alpha-key-0001"})
+    beta = httpx.Client(base_url=keyed.url, headers={"authorization": "Bearer beta-key-00002"})
+    with alpha, beta:
+        mesh_id = alpha.post("/v1/meshes", json=_ball(0.03)).json()["id"]
+        spec = {"bodies": [{"mesh": mesh_id}], "gravity": [0, 0, 0]}
+        assert_problem(beta.post("/v1/scenes", json=spec), 404, "no mesh")  # not beta's mesh
+        scene_id = alpha.post("/v1/scenes", json=spec).json()["id"]
+        for response in (
+            beta.get(f"/v1/scenes/{scene_id}"),
+            beta.post(f"/v1/scenes/{scene_id}/step", json={"steps": 1}),
+            beta.put(f"/v1/scenes/{scene_id}/state", json={"positions": [[1, 2, 3]]}),
+            beta.delete(f"/v1/scenes/{scene_id}"),
+        ):
+            assert_problem(response, 404, "no scene")
+        assert alpha.post(f"/v1/scenes/{scene_id}/step", json={"steps": 2}).json()["steps"] == 2
