@@ -162,6 +162,29 @@ def test_a_converged_step_hands_its_last_evaluation_to_the_next():
     assert after.evaluations == after.picard_iterations
 
 
+def test_multiscale_without_warm_start_restarts_at_the_roots_every_step():
+    warm = scenarios.particle_on_plane(triangles=140, drop=0.0, scheme="multiscale")
+    cold = scenarios.particle_on_plane(triangles=140, drop=0.0, scheme="multiscale")
+    cold.multiscale.warm = False
+    rows = {"warm": [], "cold": []}
+    for _ in range(120):
+        rows["warm"].append(warm.step(1e-3))
+        rows["cold"].append(cold.step(1e-3))
+    touching = [i for i, r in enumerate(rows["cold"]) if r.contacts > 0]
+    assert len(touching) > 10
+    # cold: every step in contact unfolds from the roots again; warm: only the first ones
+    assert all(rows["cold"][i].unfoldings > 0 for i in touching)
+    warm_unfold = sum(rows["warm"][i].unfoldings for i in touching[5:])
+    cold_unfold = sum(rows["cold"][i].unfoldings for i in touching[5:])
+    assert 10 * warm_unfold < cold_unfold
+    warm_cmp = sum(rows["warm"][i].comparisons for i in touching[5:])
+    cold_cmp = sum(rows["cold"][i].comparisons for i in touching[5:])
+    assert cold_cmp > 2 * warm_cmp
+    # the same trajectory within the Picard tolerance (Corollary 1)
+    np.testing.assert_allclose(warm.positions, cold.positions, atol=1e-4)
+    np.testing.assert_allclose(warm.velocities, cold.velocities, atol=1e-2)
+
+
 def test_multiscale_fronts_are_warm_started_across_steps():
     scene = scenarios.particle_particle(triangles=320, gap=0.03, scheme="multiscale")
     first = scene.step(1e-3)
