@@ -1,0 +1,134 @@
+"""Numerical stress (issue 6): degenerate and extreme geometry against the flat exact
+float64 search as the oracle. Every case: no NaN or Inf, and not one contact pair missed
+(or invented) by the multiresolution search. ``pytest -m stress`` runs all of them; the
+default run takes the fast ones (the rest are also marked ``slow``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine import Mesh, Pose, build_tree, find_contacts, shapes
+
+pytestmark = pytest.mark.stress
+
+
+def _tree(mesh: Mesh, relative: float = 0.01):
+    return build_tree(mesh, relative * mesh.diameter)
+
+
+def _quaternion(axis, angle: float) -> np.ndarray:
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.array([math.cos(angle / 2), *(math.sin(angle / 2) * axis)])
+
+
+def _check(tree_a, pose_a, tree_b, pose_b, precisions=("float64", "float32")) -> int:
+    """Multiresolution hybrid and exact searches against the flat exact float64 one: the
+    same triangle pairs and finite results; with the exact kernel in float64 also the same
+    merged contacts (the hybrid kernel's closest points differ in the last bits, so its
+    points can merge differently). Returns the oracle's pair count."""
+    oracle = find_contacts(tree_a, pose_a, tree_b, pose_b, "exact", False, "float64")
+    want = set(map(tuple, oracle.pairs.tolist()))
+    for precision in precisions:
+        for kernel in ("hybrid", "exact"):
+            found = find_contacts(tree_a, pose_a, tree_b, pose_b, kernel, True, precision)
+            for name in ("points", "normals", "overlaps"):
+                assert np.isfinite(getattr(found, name)).all(), (precision, kernel, name)
+            got = set(map(tuple, found.pairs.tolist()))
+            assert not want - got, f"missed {sorted(want - got)[:5]} ({precision}, {kernel})"
+            assert not got - want, f"invented {sorted(got - want)[:5]} ({precision}, {kernel})"
+            if kernel == "exact" and precision == "float64":  # the oracle's own arithmetic
+                np.testing.assert_allclose(found.points, oracle.points, rtol=0, atol=1e-9)
+                np.testing.assert_allclose(found.overlaps, oracle.overlaps, rtol=0, atol=1e-12)
+    return len(want)
+
+
+def _ball(subdivisions: int = 2, radius: float = 0.5) -> Mesh:
+    return shapes.icosphere(subdivisions, radius=radius)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e4, 1e6])
+def test_far_from_the_origin(offset):
+    """Pair-local frames keep float32 exact to the oracle 1e6 away from the origin."""
+    tree = _tree(_ball())
+    shift = np.array([offset, -offset, offset])
+    q = _quaternion([1, 2, 3], 0.7)
+    pairs = _check(
+        tree,
+        Pose(shift, [1, 0, 0, 0]),
+        tree,
+        Pose(shift + [0.995, 0.02, 0.0], q),
+    )
+    assert pairs > 0
+
+
+@pytest.mark.parametrize("ratio", [10, 100, 1000])
+def test_scale_ratios(ratio):
+    """A sphere 1/ratio the size of the other, touching it."""
+    large, small = _tree(_ball(3, 0.5)), _tree(_ball(2, 0.5 / ratio))
+    reach = 0.01 * (1.0 + 1.0 / ratio)
+    distance = 0.5 + 0.5 / ratio + 0.3 * reach
+    direction = np.array([1.0, 0.3, 0.2]) / np.linalg.norm([1.0, 0.3, 0.2])
+    assert _check(large, Pose.identity(), small, Pose(direction * distance, [1, 0, 0, 0])) > 0
+
+
+@pytest.mark.parametrize("thickness", [1e-3, 1e-5])
+def test_very_thin_plates(thickness):
+    plate = _tree(shapes.box((1.0, 1.0, thickness)), 0.01)
+    ball = _tree(_ball())
+    eps = 0.01 * plate.leaf_epsilon / 0.01
+    centre = [0.1, -0.05, thickness / 2 + 0.5 + 0.5 * (eps + ball.leaf_epsilon)]
+    assert _check(plate, Pose.identity(), ball, Pose(centre, [1, 0, 0, 0])) > 0
+    # and edge-on: the plate's rim against the sphere
+    edge = Pose([0.5 + 0.5 + 0.4 * (eps + ball.leaf_epsilon), 0.0, 0.0], [1, 0, 0, 0])
+    assert _check(plate, Pose.identity(), ball, edge) > 0
+
+
+@pytest.mark.parametrize("twist", [0.0, math.pi / 4])
+def test_coplanar_and_parallel_faces(twist):
+    """Two boxes face to face (parallel faces, coplanar edges), half overlapping."""
+    box = _tree(shapes.box())
+    reach = 2 * box.leaf_epsilon
+    pose = Pose([0.5, 0.0, 1.0 + 0.5 * reach], _quaternion([0, 0, 1], twist))
+    assert _check(box, Pose.identity(), box, pose) > 0
+
+
+def test_intersecting_bodies():
+    """Deep interpenetration: pairs at distance 0 (crossing triangles) are contacts too."""
+    tree = _tree(_ball())
+    assert _check(tree, Pose.identity(), tree, Pose([0.6, 0.1, 0.0], [1, 0, 0, 0])) > 0
+
+
+def test_needle_and_sliver_triangles():
+    """A thin cone (needle triangles, aspect ~100) and a long thin box (sliver faces)
+    against a sphere."""
+    cone = trimesh.creation.cone(radius=0.01, height=1.0, sections=48)
+    needle = _tree(Mesh(cone.vertices, cone.faces), 0.005)
+    ball = _tree(_ball())
+    identity = [1.0, 0.0, 0.0, 0.0]
+    reach = needle.leaf_epsilon + ball.leaf_epsilon
+    tip = Pose([0.0, 0.0, 1.0 + 0.5 + 0.3 * reach], identity)  # above the apex (z = 1)
+    flank = Pose([0.5 + 0.01 + 0.2 * reach, 0.0, 0.2], identity)
+    assert _check(ball, tip, needle, Pose.identity()) > 0
+    assert _check(ball, flank, needle, Pose.identity()) > 0
+    sliver = _tree(shapes.box((1.0, 1e-3, 1e-3)), 0.01)
+    beside = Pose(
+        [0.2, 0.0, 0.5 + 0.5e-3 + 0.3 * (sliver.leaf_epsilon + ball.leaf_epsilon)], identity
+    )
+    assert _check(sliver, Pose.identity(), ball, beside) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(20))
+def test_random_poses_of_a_torus_and_a_noisy_sphere(seed):
+    """Non-convex against rough: random poses near contact."""
+    rng = np.random.default_rng(seed)
+    torus = _tree(shapes.torus(1.0, 0.3, 32, 16))
+    rough = _tree(shapes.noisy_sphere(3, eta_r=1.2, seed=seed))
+    q = rng.normal(size=4)
+    direction = rng.normal(size=3)
+    position = direction / np.linalg.norm(direction) * rng.uniform(0.6, 1.6)
+    _check(torus, Pose.identity(), rough, Pose(position, q / np.linalg.norm(q)))
