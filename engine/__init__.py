@@ -20,7 +20,7 @@ from .distance import (
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
 from .forces import ContactModel, HertzSpring, LinearSpring, PaperSpring
 from .mesh import MassProperties, Mesh, load_mesh
-from .picard import StepStats
+from .picard import StepStats, TunnellingWarning
 from .pose import Pose
 from .scene import SCHEMES, Scene, SceneState
 from .tree import SurrogateTree, TreeStats, build_tree
@@ -41,6 +41,7 @@ __all__ = [
     "Scene",
     "SceneState",
     "StepStats",
+    "TunnellingWarning",
     "PairCache",
     "TreeBank",
     "find_contacts_batch",

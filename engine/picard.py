@@ -31,14 +31,17 @@ within the tolerance, was biased the same way every step.)
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from .kernels import dynamics as kd
 
-__all__ = ["StepStats", "step"]
+__all__ = ["StepStats", "TunnellingWarning", "step", "travel"]
 
 BETA_MAX = 1.5
 BETA_MIN = 0.01
@@ -65,6 +68,10 @@ class StepStats:
     elastic_energy : float — energy stored in the contact springs, last evaluation
     halvings : int — how many times the step was split because Picard did not converge
     seconds : float — wall time
+    travel : float — the step's largest surface travel of a body relative to its ε,
+        (|v| + |ω|·R)·dt / ε at the step's start: above 1 a contact may be missed
+        (tunnelling)
+    substeps : int — sub-steps the step was split into because of ``travel`` (1: none)
     """
 
     scheme: str
@@ -86,11 +93,51 @@ class StepStats:
     elastic_energy: float
     halvings: int
     seconds: float
+    travel: float = 0.0
+    substeps: int = 1
+
+
+class TunnellingWarning(UserWarning):
+    """A step moves some body's surface by more than its ε: contacts may be missed."""
+
+
+def travel(scene, dt: float) -> tuple[float, int]:
+    """``(ratio, body)``: the largest (|v| + |ω|·R)·dt / ε over the free bodies (R: the
+    bounding radius of the body's tree, ε: its leaf ε) and that body (-1 for none)."""
+    free = np.flatnonzero(~scene.fixed)
+    if not len(free):
+        return 0.0, -1
+    radius = _radii(scene)[free]
+    speed = np.linalg.norm(scene.velocities[free], axis=1) + radius * np.linalg.norm(
+        scene.angular_velocities[free], axis=1
+    )
+    ratio = speed * abs(dt) / scene.epsilon[free]
+    k = int(np.argmax(ratio))
+    return float(ratio[k]), int(free[k])
 
 
 def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> StepStats:
-    """Advance ``scene`` by ``dt`` with ``scheme`` (see the module docstring)."""
+    """Advance ``scene`` by ``dt`` with ``scheme`` (see the module docstring).
+
+    No contact is missed while every body's surface moves by less than its ε per step
+    (:func:`travel` ≤ 1: the step cannot jump from outside the contact halo to beyond
+    it). Above that, ``scene.substeps`` splits the step into ⌈travel⌉ equal sub-steps;
+    otherwise a :class:`TunnellingWarning` says so."""
     start = time.perf_counter()
+    ratio, body = travel(scene, dt)
+    if ratio > 1.0 and halvings_left is None:
+        k = math.ceil(ratio)
+        if scene.substeps:
+            parts = [step(scene, dt / k, scheme, scene.max_halvings) for _ in range(k)]
+            merged = _combined(parts, dt, time.perf_counter() - start)
+            return dataclasses.replace(merged, travel=ratio, substeps=k)
+        warnings.warn(
+            TunnellingWarning(
+                f"body {body} moves {ratio:.3g} times its ε in this step of {dt:g}: contacts"
+                f" may be missed. Use dt <= {dt / ratio:.3g} or Scene(substeps=True)"
+            ),
+            stacklevel=3,
+        )
     left = scene.max_halvings if halvings_left is None else halvings_left
     state = _state(scene)
     if scheme == "explicit":
@@ -106,9 +153,17 @@ def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> Ste
         _restore(scene, state)
         first = step(scene, dt / 2, scheme, left - 1)
         second = step(scene, dt / 2, scheme, left - 1)
-        return _merged(first, second, dt, time.perf_counter() - start)
+        merged = _combined([first, second], dt, time.perf_counter() - start)
+        return dataclasses.replace(merged, halvings=merged.halvings + 1, travel=ratio)
     scene.time += dt
-    return StepStats(scheme=scheme, dt=dt, halvings=0, seconds=time.perf_counter() - start, **stats)
+    return StepStats(
+        scheme=scheme,
+        dt=dt,
+        halvings=0,
+        seconds=time.perf_counter() - start,
+        travel=ratio,
+        **stats,
+    )
 
 
 class _Search:
@@ -381,7 +436,9 @@ def _summary(scene, contacts, counters, energy, converged: bool, iterations: int
     }
 
 
-def _merged(first: StepStats, second: StepStats, dt: float, seconds: float) -> StepStats:
+def _combined(parts: list[StepStats], dt: float, seconds: float) -> StepStats:
+    """One step's statistics from consecutive parts of it (halves or sub-steps): counters
+    summed, the state of the last part, the worst overlap."""
     summed = (
         "picard_iterations",
         "evaluations",
@@ -389,22 +446,20 @@ def _merged(first: StepStats, second: StepStats, dt: float, seconds: float) -> S
         "iterative",
         "fallbacks",
         "sphere_pruned",
+        "unfoldings",
+        "folds",
         "listed",
+        "halvings",
     )
-    return StepStats(
-        scheme=second.scheme,
+    last = parts[-1]
+    return dataclasses.replace(
+        last,
         dt=dt,
-        converged=first.converged and second.converged,
-        body_pairs=second.body_pairs,
-        contacts=second.contacts,
-        triangle_pairs=second.triangle_pairs,
-        unfoldings=first.unfoldings + second.unfoldings,
-        folds=first.folds + second.folds,
-        max_overlap=max(first.max_overlap, second.max_overlap),
-        elastic_energy=second.elastic_energy,
-        halvings=1 + first.halvings + second.halvings,
+        converged=all(p.converged for p in parts),
+        max_overlap=max(p.max_overlap for p in parts),
         seconds=seconds,
-        **{k: getattr(first, k) + getattr(second, k) for k in summed},
+        travel=max(p.travel for p in parts),
+        **{k: sum(getattr(p, k) for p in parts) for k in summed},
     )
 
 

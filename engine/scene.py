@@ -111,6 +111,9 @@ class Scene:
     max_halvings : int — a step whose Picard iteration does not converge is redone as two
         half steps, at most this deep (0: report the failure in the step's stats only)
     threads : int, optional — worker threads of the narrow phase (default: all cores)
+    substeps : bool — split a step in which some body's surface would move by more than its
+        ε into as many equal sub-steps as that takes (else a ``TunnellingWarning``; see
+        :func:`engine.picard.travel`)
     skin : float — the multiresolution search keeps, per body pair, the leaf pairs within
         ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
         by less than that skin (:class:`~engine.batch.PairCache`: exactly the same
@@ -129,6 +132,7 @@ class Scene:
         max_halvings: int = 0,
         threads: int | None = None,
         skin: float = 0.5,
+        substeps: bool = False,
     ) -> None:
         self.gravity = check_vector(gravity, 3, "gravity")
         model = PaperSpring() if contact_model is None else contact_model
@@ -150,6 +154,7 @@ class Scene:
             raise InvalidArgumentError("max_halvings must be >= 0")
         self.max_halvings = int(max_halvings)
         self.threads = threads
+        self.substeps = bool(substeps)
         self.time = 0.0
         self.trees: list[SurrogateTree] = []
         self._tree_keys: dict[tuple, int] = {}

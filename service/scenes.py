@@ -66,6 +66,7 @@ def parse_spec(body, max_bodies: int) -> dict:
         "scheme": choice(body.get("scheme", "implicit-surrogate"), "scheme", SCHEMES),
         "kernel": choice(body.get("kernel", "hybrid"), "kernel", KERNELS),
         "max_halvings": number(body.get("max_halvings", 0), "max_halvings", 0, 8, integer=True),
+        "substeps": flag(body.get("substeps", False), "substeps"),
         "contact_model": {
             "law": choice(law.get("law", "paper"), "contact_model.law", LAWS),
             **{
@@ -135,6 +136,7 @@ def build_scene(spec: dict, tree_of, threads: int) -> Scene:
         kernel=spec["kernel"],
         max_halvings=spec["max_halvings"],
         threads=threads,
+        substeps=spec.get("substeps", False),
     )
     bodies = spec["bodies"]
     start = 0

@@ -31,7 +31,8 @@ router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 async def create_scene(request: Request, owner: str = Depends(owner_of)):
     """``{"bodies": [{"mesh", "position", "orientation", "velocity", "angular_velocity",
     "density" | "mass", "fixed"}], "planes": [{"point", "normal", "size"}], "gravity",
-    "epsilon" (of the planes), "dt", "scheme", "kernel", "contact_model": {"law":
+    "epsilon" (of the planes), "dt", "scheme", "kernel", "max_halvings", "substeps" (split
+    a step that would move a body by more than its ε), "contact_model": {"law":
     "paper" | "linear" | "hertz", "stiffness", "damping", "friction", "slip_velocity"}}``
     → 201 ``{"id", …}``."""
     state = request.app.state

@@ -6,12 +6,13 @@ default run takes the fast ones (the rest are also marked ``slow``)."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
 import trimesh
 
-from engine import Mesh, Pose, build_tree, find_contacts, shapes
+from engine import Mesh, Pose, Scene, TunnellingWarning, build_tree, find_contacts, shapes
 
 pytestmark = pytest.mark.stress
 
@@ -132,3 +133,36 @@ def test_random_poses_of_a_torus_and_a_noisy_sphere(seed):
     direction = rng.normal(size=3)
     position = direction / np.linalg.norm(direction) * rng.uniform(0.6, 1.6)
     _check(torus, Pose.identity(), rough, Pose(position, q / np.linalg.norm(q)))
+
+
+def _thrown_at_a_plane(speed: float, substeps: bool) -> Scene:
+    """A ball 0.03 above a fixed plane (zero thickness), thrown at it, no gravity."""
+    scene = Scene(gravity=(0.0, 0.0, 0.0), scheme="explicit", substeps=substeps)
+    scene.add_plane(size=4.0, divisions=4)
+    scene.add_body(_ball(), position=(0.0, 0.0, 0.5 + 0.03), velocity=(0.0, 0.0, -speed))
+    return scene
+
+
+def test_no_tunnelling_below_the_bound_and_a_warning_above_it():
+    dt = 1e-3
+    # below ε/dt (ε = 0.01): every step moves the surface by less than ε: contact found
+    slow = _thrown_at_a_plane(0.9 * 0.01 / dt, substeps=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rows = [slow.step(dt) for _ in range(3)]  # until it is in the halo (not the bounce)
+    assert rows[-1].contacts > 0 and max(r.travel for r in rows) < 1.0
+    # far above it: one step carries the ball through the plane, the contact is missed,
+    # and the step says so
+    fast = _thrown_at_a_plane(2000.0, substeps=False)
+    with pytest.warns(TunnellingWarning, match="contacts may be missed"):
+        row = fast.step(dt)
+    assert row.contacts == 0 and row.travel > 100 and fast.positions[1, 2] < -1.0
+    assert fast.velocities[1, 2] == -2000.0  # no force ever acted
+    # with sub-steps the contact is caught on the way through
+    caught = _thrown_at_a_plane(2000.0, substeps=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        row = caught.step(dt)
+    assert row.substeps == math.ceil(row.travel) and row.comparisons > 0
+    assert caught.velocities[1, 2] > -2000.0  # the plane's contact forces acted
+    assert np.isfinite(caught.positions).all() and np.isfinite(caught.velocities).all()
