@@ -72,6 +72,7 @@ class StepStats:
         (|v| + |ω|·R)·dt / ε at the step's start: above 1 a contact may be missed
         (tunnelling)
     substeps : int — sub-steps the step was split into because of ``travel`` (1: none)
+    sleeping : int — bodies asleep after the step (:mod:`engine.sleep`)
     """
 
     scheme: str
@@ -95,6 +96,7 @@ class StepStats:
     seconds: float
     travel: float = 0.0
     substeps: int = 1
+    sleeping: int = 0
 
 
 class TunnellingWarning(UserWarning):

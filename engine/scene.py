@@ -37,6 +37,7 @@ from .kernels import dynamics as kd
 from .mesh import Mesh
 from .pose import Pose
 from .shapes import plane
+from .sleep import Sleep
 from .tree import SurrogateTree, build_tree
 
 __all__ = ["SCHEMES", "Scene", "SceneState"]
@@ -111,6 +112,7 @@ class Scene:
     max_halvings : int — a step whose Picard iteration does not converge is redone as two
         half steps, at most this deep (0: report the failure in the step's stats only)
     threads : int, optional — worker threads of the narrow phase (default: all cores)
+    sleep : bool or Sleep — let bodies at rest sleep (:mod:`engine.sleep`; off by default)
     substeps : bool — split a step in which some body's surface would move by more than its
         ε into as many equal sub-steps as that takes (else a ``TunnellingWarning``; see
         :func:`engine.picard.travel`)
@@ -133,6 +135,7 @@ class Scene:
         threads: int | None = None,
         skin: float = 0.5,
         substeps: bool = False,
+        sleep=False,
     ) -> None:
         self.gravity = check_vector(gravity, 3, "gravity")
         model = PaperSpring() if contact_model is None else contact_model
@@ -155,6 +158,11 @@ class Scene:
         self.max_halvings = int(max_halvings)
         self.threads = threads
         self.substeps = bool(substeps)
+        if sleep is True:
+            sleep = Sleep()
+        if sleep is not False and sleep is not None and not isinstance(sleep, Sleep):
+            raise InvalidArgumentError("sleep must be a bool or an engine.sleep.Sleep")
+        self.sleep = sleep or None
         self.time = 0.0
         self.trees: list[SurrogateTree] = []
         self._tree_keys: dict[tuple, int] = {}
@@ -274,6 +282,7 @@ class Scene:
             inertia = unit.inertia * scale
             inverse = np.linalg.inv(inertia)
         first = len(self)
+        self._wake()
         self.pair_cache.clear()  # its keys number the pairs by the body count
         self._evaluation = None
         self.positions = np.concatenate([self.positions, positions])
@@ -320,6 +329,12 @@ class Scene:
     def set_external_force(self, body: int, force) -> None:
         """Constant world-frame force on ``body`` (added to gravity every step)."""
         self.external_forces[self._body(body)] = check_vector(force, 3, "force")
+        self._wake()
+
+    def _wake(self) -> None:
+        """Every body awake (the scene changed from outside)."""
+        if self.sleep is not None:
+            self.sleep.wake_all(len(self))
 
     # ------------------------------------------------------------------ state
     @property
@@ -356,6 +371,7 @@ class Scene:
                 new[name][self.fixed] = 0.0
         for name, value in new.items():
             setattr(self, name, value)
+        self._wake()
 
     # ------------------------------------------------------------------ stepping
     def step(self, dt: float, scheme: str | None = None):
@@ -366,6 +382,8 @@ class Scene:
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0):
             raise InvalidArgumentError(f"dt must be finite and > 0, got {dt}")
+        if self.sleep is not None:
+            return self.sleep.step(self, dt, _scheme(scheme or self.scheme))
         return step(self, dt, _scheme(scheme or self.scheme))
 
     def kinetic_energy(self) -> float:
