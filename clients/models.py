@@ -52,15 +52,6 @@ class ContactResult:
     overlaps: np.ndarray
     pairs: np.ndarray
 
-    @classmethod
-    def from_payload(cls, payload: dict) -> ContactResult:
-        return cls(
-            np.asarray(payload["points"], float).reshape(-1, 3),
-            np.asarray(payload["normals"], float).reshape(-1, 3),
-            np.asarray(payload["overlaps"], float).reshape(-1),
-            np.asarray(payload["pairs"], np.int64).reshape(-1, 2),
-        )
-
 
 @dataclass(frozen=True)
 class Contacts:

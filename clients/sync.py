@@ -60,7 +60,8 @@ class Client(ClientBase):
         return self._mesh(payload, status)
 
     def mesh(self, mesh: MeshInfo | str) -> MeshInfo:
-        payload, status = self._send(Call("GET", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
+        """The facts of one uploaded mesh (by :class:`MeshInfo` or id)."""
+        payload, _ = self._send(Call("GET", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
         return self._mesh(payload, 200)
 
     def meshes(self) -> list[MeshInfo]:

@@ -120,3 +120,13 @@ def test_columnar_contacts_equal_the_pairwise_call(client):
     assert len(columns) == len(pairwise) == n and len(columns.points) > 0
     for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
         np.testing.assert_array_equal(getattr(columns, name), getattr(pairwise, name))
+
+
+def test_mesh_lookup_and_delete(client):
+    mesh = shapes.icosphere(1, radius=0.25)
+    info = client.upload_mesh((mesh.vertices, mesh.faces), epsilon=0.005)
+    assert client.mesh(info).id == info.id and client.mesh(info.id).triangles == 80
+    client.delete_mesh(info)
+    with pytest.raises(ProblemError) as error:
+        client.mesh(info)
+    assert error.value.status == 404
