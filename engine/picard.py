@@ -441,18 +441,9 @@ def _summary(scene, contacts, counters, energy, converged: bool, iterations: int
 def _combined(parts: list[StepStats], dt: float, seconds: float) -> StepStats:
     """One step's statistics from consecutive parts of it (halves or sub-steps): counters
     summed, the state of the last part, the worst overlap."""
-    summed = (
-        "picard_iterations",
-        "evaluations",
-        "comparisons",
-        "iterative",
-        "fallbacks",
-        "sphere_pruned",
-        "unfoldings",
-        "folds",
-        "listed",
-        "halvings",
-    )
+    from .scene import SEARCH_COUNTERS
+
+    summed = ("picard_iterations", "evaluations", *SEARCH_COUNTERS, "halvings")
     last = parts[-1]
     return dataclasses.replace(
         last,
