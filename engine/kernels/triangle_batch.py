@@ -40,6 +40,9 @@ EXACT, ITERATIVE, HYBRID = np.int64(0), np.int64(1), np.int64(2)
 NO_CONTACT, CONTACT, NOT_CONVERGED = np.int64(0), np.int64(1), np.int64(2)
 ZERO = np.int64(0)
 BLOCK = 256
+# Hybrid contacts closer than NEAR tolerances of the iterative kernel get exact points: below
+# that, the direction of q − p (the contact normal) is set by the iteration's error.
+NEAR = 16.0
 # Counter slots of the ``stats`` output (int64).
 STAT_PAIRS, STAT_CULLED, STAT_ITERATIVE, STAT_FALLBACKS = 0, 1, 2, 3
 STAT_SPHERES = 4  # node pairs pruned by bounding spheres (the traversal only)
@@ -371,7 +374,8 @@ def _resolve(m, params, work, n, out, stats):
 
     ``params = (mode, iterations, rtol, one, band_factor)``. ``EXACT``: the exact
     kernel on all. Otherwise the iterative kernel, and in ``HYBRID`` mode the
-    exact kernel on its not-converged pairs.
+    exact kernel on its not-converged pairs and on its contacts closer than
+    :data:`NEAR` tolerances (whose normals the iteration cannot resolve).
     """
     mode, iterations, rtol, one, band_factor = params
     ga, gfa, gb, gfb, gi, gj, geps, scratch, dist = work
@@ -398,6 +402,12 @@ def _resolve(m, params, work, n, out, stats):
                 n = _record(
                     n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
                 )
+        elif mode == HYBRID and st == CONTACT and upper <= NEAR * (rtol * eps + band):
+            # nearly coincident closest points: the iterate's q − p, and so the contact's
+            # normal, is no better than its tolerance; the exact kernel gives the true ones
+            stats[STAT_FALLBACKS] += 1
+            d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
+            n = _record(n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s)
         elif st != NO_CONTACT:
             o = (ga[0, k], ga[1, k], ga[2, k])
             p = (scratch[0, k] + o[0], scratch[1, k] + o[1], scratch[2, k] + o[2])
