@@ -23,6 +23,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from common import pareto_front  # noqa: E402
 
 import engine  # noqa: E402
 from engine import TunnellingWarning, scenarios  # noqa: E402
@@ -74,21 +77,6 @@ def trajectory(name: str, scheme: str, dt: float) -> tuple[np.ndarray, np.ndarra
     return np.array(checks), scene.velocities.copy(), seconds, {"non_converged": non_converged}
 
 
-def pareto(rows: list[dict]) -> list[dict]:
-    """The runs no other run beats in both time and error."""
-    stable = [r for r in rows if r["stable"]]
-    return [
-        r
-        for r in stable
-        if not any(
-            o["seconds"] <= r["seconds"]
-            and o["position_error"] <= r["position_error"]
-            and (o["seconds"] < r["seconds"] or o["position_error"] < r["position_error"])
-            for o in stable
-        )
-    ]
-
-
 def main() -> None:
     names = sys.argv[1:] or list(SCENARIOS)
     OUT.mkdir(exist_ok=True)
@@ -123,7 +111,7 @@ def main() -> None:
                     f"{extra['non_converged']:8d}  {'yes' if row['stable'] else 'NO'}",
                     flush=True,
                 )
-        front = pareto(rows)
+        front = pareto_front([r for r in rows if r["stable"]], "seconds", "position_error")
         print("Pareto front (time against position error):")
         for r in sorted(front, key=lambda r: r["seconds"]):
             seconds, error = r["seconds"], r["position_error"]

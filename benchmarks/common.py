@@ -27,3 +27,17 @@ def per_call(fn, calls: int = 200, repeat: int = 7) -> float:
             fn()
         best = min(best, (time.perf_counter() - start) / calls)
     return best
+
+
+def pareto_front(rows: list[dict], cost: str, error: str) -> list[dict]:
+    """The rows no other row beats in both ``cost`` and ``error`` (lower is better)."""
+    return [
+        r
+        for r in rows
+        if not any(
+            o[cost] <= r[cost]
+            and o[error] <= r[error]
+            and (o[cost] < r[cost] or o[error] < r[error])
+            for o in rows
+        )
+    ]

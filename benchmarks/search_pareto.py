@@ -23,6 +23,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from common import pareto_front  # noqa: E402
 
 import engine  # noqa: E402
 from engine import Pose, build_tree, find_contacts, shapes  # noqa: E402
@@ -118,16 +121,7 @@ def main() -> None:
                         flush=True,
                     )
         complete = [r for r in rows if r["missed"] == 0]
-        front = [
-            r
-            for r in complete
-            if not any(
-                o["seconds"] <= r["seconds"]
-                and o["point"] <= r["point"]
-                and (o["seconds"] < r["seconds"] or o["point"] < r["point"])
-                for o in complete
-            )
-        ]
+        front = pareto_front(complete, "seconds", "point")
         print("Pareto front (time against point error, nothing missed):")
         for r in sorted(front, key=lambda r: r["seconds"]):
             print(
