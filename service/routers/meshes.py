@@ -17,7 +17,7 @@ from engine.tree import TREE_FORMAT
 
 from ..auth import owner_of
 from ..codecs import decode, respond
-from ..errors import BadRequest, NotFound, Unprocessable
+from ..errors import BadRequest, NotFound, ServiceError, Unprocessable
 from ..inputs import array, field, number
 
 router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
@@ -128,11 +128,9 @@ async def _from_form(request: Request):
     limit = request.app.state.settings.max_body_bytes
     try:
         form = await request.form(max_files=1, max_fields=8, max_part_size=limit)
-    except BadRequest:
+    except ServiceError:  # e.g. the body limit, raised while the form streams in
         raise
     except Exception as exc:  # the multipart parser's own errors: a malformed body
-        if type(exc).__name__ == "PayloadTooLarge":
-            raise
         raise BadRequest(f"malformed multipart body: {exc}") from None
     upload = form.get("file")
     if upload is None or isinstance(upload, str):
