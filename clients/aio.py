@@ -60,7 +60,7 @@ class AsyncClient(ClientBase):
     async def delete_mesh(self, mesh: MeshInfo | str) -> None:
         await self._send(Call("DELETE", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
 
-    async def contacts(self, pairs, kernel="hybrid", hierarchy=True, precision="float64"):
+    async def contacts(self, pairs, kernel="hybrid", hierarchy=True, precision=None):
         payload, _ = await self._send(self._contacts(pairs, kernel, hierarchy, precision))
         return self._found(payload)
 
@@ -76,7 +76,7 @@ class AsyncClient(ClientBase):
             qb,
             options.get("kernel", "hybrid"),
             options.get("hierarchy", True),
-            options.get("precision", "float64"),
+            options.get("precision"),
         )
         payload, _ = await self._send(call)
         return self._found(payload)

@@ -83,9 +83,10 @@ def pose_payload(pose) -> dict:
     return {"position": np.asarray(parts, float), "orientation": [1.0, 0.0, 0.0, 0.0]}
 
 
-def contacts_call(pairs, kernel: str, hierarchy: bool, precision: str) -> Call:
+def contacts_call(pairs, kernel: str, hierarchy: bool, precision: str | None) -> Call:
     """``pairs``: ``(a, pose_a, b, pose_b)`` tuples or ``{"a", "pose_a", "b", "pose_b"}``;
-    sent in the service's columnar layout (one array per field)."""
+    sent in the service's columnar layout (one array per field). ``precision=None`` leaves
+    the arithmetic to the service's default."""
     meshes: dict[str, int] = {}
     index = {"a": [], "b": []}
     poses = {k: [] for k in ("position_a", "orientation_a", "position_b", "orientation_b")}
@@ -106,8 +107,9 @@ def contacts_call(pairs, kernel: str, hierarchy: bool, precision: str) -> Call:
         **{k: np.array(v, np.float64).reshape(len(v), -1) for k, v in poses.items()},
         "kernel": kernel,
         "hierarchy": hierarchy,
-        "precision": precision,
     }
+    if precision is not None:
+        payload["precision"] = precision
     return Call("POST", "/v1/contacts", payload=payload)
 
 
@@ -121,7 +123,7 @@ def columnar_call(meshes, a, position_a, orientation_a, b, position_b, orientati
         "orientation_a": np.ascontiguousarray(orientation_a, np.float64),
         "position_b": np.ascontiguousarray(position_b, np.float64),
         "orientation_b": np.ascontiguousarray(orientation_b, np.float64),
-        **options,
+        **{k: v for k, v in options.items() if v is not None},  # None: the service's default
     }
     return Call("POST", "/v1/contacts", payload=payload)
 

@@ -72,10 +72,15 @@ class Client(ClientBase):
         self._send(Call("DELETE", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
 
     def contacts(
-        self, pairs, kernel: str = "hybrid", hierarchy: bool = True, precision: str = "float64"
+        self,
+        pairs,
+        kernel: str = "hybrid",
+        hierarchy: bool = True,
+        precision: str | None = None,
     ) -> Contacts:
         """Contacts of ``(a, pose_a, b, pose_b)`` pairs; a pose is ``(position,
-        orientation)``, a position, or a dict."""
+        orientation)``, a position, or a dict. ``precision`` "float32" or "float64"; None
+        takes the service's default (float64)."""
         payload, _ = self._send(self._contacts(pairs, kernel, hierarchy, precision))
         return self._found(payload)
 
@@ -90,7 +95,7 @@ class Client(ClientBase):
         orientation_b,
         kernel: str = "hybrid",
         hierarchy: bool = True,
-        precision: str = "float64",
+        precision: str | None = None,
     ) -> Contacts:
         """Contacts of ``n`` pairs given as arrays: ``a, b (n,)`` indices into ``meshes``
         (ids or :class:`MeshInfo`), ``position_* (n, 3)``, ``orientation_* (n, 4)`` unit

@@ -9,6 +9,7 @@ from .broadphase import candidate_pairs
 from .contacts import ContactSet, ContactStats, find_contacts
 from .distance import (
     DEFAULT_ITERATIONS,
+    DEFAULT_PRECISION,
     KernelStats,
     PairStatus,
     TriangleContacts,
@@ -46,6 +47,7 @@ __all__ = [
     "TreeBank",
     "find_contacts_batch",
     "DEFAULT_ITERATIONS",
+    "DEFAULT_PRECISION",
     "KernelStats",
     "PairStatus",
     "TriangleContacts",

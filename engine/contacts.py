@@ -25,6 +25,7 @@ their average (normals averaged and renormalised, overlaps averaged).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +33,7 @@ import numpy as np
 from .arguments import KERNELS, check_kernel, check_precision, kernel_constants
 from .distance import (
     DEFAULT_ITERATIONS,
+    DEFAULT_PRECISION,
     DEFAULT_RTOL,
     TriangleSet,
     triangle_contacts,
@@ -102,8 +104,9 @@ def find_contacts(
     pose_b: Pose,
     kernel: str = "hybrid",
     hierarchy: bool = True,
-    precision: str = "float64",
+    precision: str = DEFAULT_PRECISION,
     traversal: str = "pairs",
+    iterations: int = DEFAULT_ITERATIONS,
 ) -> ContactSet:
     """Contacts between body A (``tree_a`` at ``pose_a``) and body B.
 
@@ -116,10 +119,12 @@ def find_contacts(
         reports only certified contacts)
     hierarchy : bool — multiresolution search; False runs the flat search over all
         leaf pairs
-    precision : "float32" or "float64"
+    precision : "float32" or "float64" (default: :data:`~engine.distance.DEFAULT_PRECISION`)
     traversal : "pairs" — a front of node pairs, one Numba kernel per query (default);
         "sets" — the paper's Algorithm 5: every pair of two active node sets per round
         (driven from Python; for comparison, see BENCHMARKS.md)
+    iterations : int ≥ 1 — sweeps of the iterative kernel per pair, for surrogate pairs and
+        (kernels "iterative" and "hybrid") leaf pairs; ``benchmarks/search_pareto.py`` sweeps it
 
     Returns
     -------
@@ -134,16 +139,24 @@ def find_contacts(
     check_kernel(kernel), check_precision(precision)  # validate before any work
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)):
+        raise InvalidArgumentError(f"iterations must be an integer, got {iterations!r}")
+    if iterations < 1:
+        raise InvalidArgumentError(f"iterations must be at least 1, got {iterations}")
     rot_a, rotation, shift = relative_pose(
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
     )
     pose = (rotation, shift)
     contact = _contact_setup(tree_a, tree_b, rot_a, pose_a.position.copy(), kernel)
     if hierarchy and traversal == "pairs":
-        result, counters = _hierarchical(tree_a, tree_b, pose, contact, kernel, precision)
+        result, counters = _hierarchical(
+            tree_a, tree_b, pose, contact, kernel, precision, int(iterations)
+        )
     else:
         search = _active_sets if hierarchy else _flat
-        found, count, face_a, face_b, counters = search(tree_a, tree_b, pose, kernel, precision)
+        found, count, face_a, face_b, counters = search(
+            tree_a, tree_b, pose, kernel, precision, int(iterations)
+        )
         result = (
             np.empty((count, 2), np.int64),
             np.empty((count, 3)),
@@ -246,7 +259,7 @@ def _faces(tree: SurrogateTree) -> np.ndarray:
     return tree.__dict__["_faces"]
 
 
-def _flat(tree_a, tree_b, pose, kernel, precision):
+def _flat(tree_a, tree_b, pose, kernel, precision, iterations):
     leaves = _face_nodes(tree_b)
     coords, frames = _moved(tree_b, pose, leaves, np.dtype(precision).type)
     res = triangle_contacts(
@@ -257,6 +270,7 @@ def _flat(tree_a, tree_b, pose, kernel, precision):
         kernel=kernel,
         precision=precision,
         threads=1,
+        iterations=iterations,
     )
     s = res.stats
     found = _found(res.pairs, res)
@@ -281,11 +295,11 @@ def _found(pairs: np.ndarray, res) -> tuple:
     )
 
 
-def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
+def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision, iterations):
     dtype = np.dtype(precision).type
     sa = _node_set(tree_a, precision, False)
     master = _master(tree_b)
-    coarse, leaf = query_parameters(kernel, dtype)
+    coarse, leaf = query_parameters(kernel, dtype, iterations)
     body_a = (sa.coords_rm, sa.frames_rm, *_structure(tree_a), spheres(tree_a))
     body_b = (
         master.coords_rm,
@@ -309,11 +323,15 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision):
     return result, counters
 
 
-def query_parameters(kernel: str, dtype) -> tuple[tuple, tuple]:
+@functools.lru_cache(maxsize=64)
+def query_parameters(
+    kernel: str, dtype, iterations: int = DEFAULT_ITERATIONS
+) -> tuple[tuple, tuple]:
     """Kernel parameters ``(mode, iterations, rtol, one, band)`` for surrogate pairs
-    (iterative; exact when ``kernel="exact"``) and for leaf pairs (``kernel``)."""
+    (iterative; exact when ``kernel="exact"``) and for leaf pairs (``kernel``); cached
+    (immutable scalars)."""
     one, band = kernel_constants(dtype)
-    iterations, rtol = np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL)
+    iterations, rtol = np.int64(iterations), dtype(DEFAULT_RTOL)
     coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
     return (coarse_mode, iterations, rtol, one, band), (
         KERNELS[kernel],
@@ -335,7 +353,7 @@ def _structure(tree: SurrogateTree) -> tuple[np.ndarray, ...]:
     return tree.__dict__["_structure"]
 
 
-def _active_sets(tree_a, tree_b, pose, kernel, precision):
+def _active_sets(tree_a, tree_b, pose, kernel, precision, iterations):
     """Algorithm 5: compare all pairs of the active sets; unfold both nodes of a hit."""
     dtype = np.dtype(precision).type
     sa = _node_set(tree_a, precision, False)
@@ -350,7 +368,15 @@ def _active_sets(tree_a, tree_b, pose, kernel, precision):
 
     def contacts(grid, kernel):
         return triangle_contacts(
-            sa, sb, eps_a, eps_b, pairs=grid, kernel=kernel, precision=precision, threads=1
+            sa,
+            sb,
+            eps_a,
+            eps_b,
+            pairs=grid,
+            kernel=kernel,
+            precision=precision,
+            threads=1,
+            iterations=iterations,
         )
 
     while len(active_a) and len(active_b):

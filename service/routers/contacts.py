@@ -12,8 +12,8 @@ Two request layouts, each answered in kind:
   "stats"}``.
 
 Options: ``kernel`` (exact, iterative, hybrid), ``hierarchy`` (false: the flat search),
-``precision`` (float32, float64). Points and normals are in the world frame, normals
-unit from A to B, overlaps ε_a + ε_b − d, pairs (face of A, face of B).
+``precision`` (float32, or float64: the default). Points and normals are in the world frame,
+normals unit from A to B, overlaps ε_a + ε_b − d, pairs (face of A, face of B).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import time
 import numpy as np
 from fastapi import APIRouter, Depends, Request
 
-from engine import Pose, find_contacts_batch
+from engine import DEFAULT_PRECISION, Pose, find_contacts_batch
 from engine.arguments import KERNELS, PRECISIONS
 from engine.kernels import batch as kb
 
@@ -46,7 +46,7 @@ async def contacts(request: Request, owner: str = Depends(owner_of)):
         raise Unprocessable("body must be an object")
     kernel = choice(body.get("kernel", "hybrid"), "kernel", KERNELS)
     hierarchy = flag(body.get("hierarchy", True), "hierarchy")
-    precision = choice(body.get("precision", "float64"), "precision", PRECISIONS)
+    precision = choice(body.get("precision", DEFAULT_PRECISION), "precision", PRECISIONS)
     columnar = "pairs" not in body
     meshes, query = _columnar(body) if columnar else _per_pair(field(body, "pairs"))
     n = len(query[0])

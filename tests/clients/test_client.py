@@ -49,6 +49,22 @@ def test_contacts_equal_the_engine(client):
     assert len(found[2].points) == 0 and found.stats["pairs"] == 3
 
 
+def test_precision_is_the_services_default_unless_asked(client):
+    mesh = shapes.icosphere(2, radius=0.5)
+    info = client.upload_mesh((mesh.vertices, mesh.faces), epsilon=0.02)
+    pairs = [(info, None, info, ([0.99, 0.0, 0.0], [0.8, 0.6, 0, 0]))]
+    tree = build_tree(mesh, 0.02)
+    query = [(tree, Pose.identity(), tree, Pose([0.99, 0, 0], [0.8, 0.6, 0, 0]))]
+    for asked in (None, "float64", "float32"):
+        found = client.contacts(pairs, precision=asked)[0]
+        want = find_contacts_batch(query, **({"precision": asked} if asked else {}))[0]
+        assert len(want.points) > 0
+        np.testing.assert_array_equal(found.overlaps, want.overlaps)  # bit for bit
+    single = client.contacts(pairs, precision="float32")[0]
+    double = client.contacts(pairs)[0]
+    assert not np.array_equal(single.overlaps, double.overlaps)  # the default is float64
+
+
 @pytest.mark.parametrize("wire", ["msgpack", "json"])
 def test_a_remote_scene_loop(service, wire):
     mesh = shapes.icosphere(2, radius=0.5)

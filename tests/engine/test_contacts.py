@@ -189,3 +189,32 @@ def test_statistics_count_the_work(trees, traversal):
     assert tree.stats.comparisons == sum(tree.stats.comparisons_per_level) < flat.stats.comparisons
     leaves = int((ta.face >= 0).sum()) * int((tb.face >= 0).sum())
     assert flat.stats.unfoldings == 0 and flat.stats.comparisons == leaves
+
+
+@pytest.mark.parametrize("traversal", ["pairs", "sets"])
+def test_iteration_count_changes_the_work_not_the_pairs(trees, traversal):
+    """More sweeps of the iterative kernel certify more pairs (fewer exact fallbacks);
+    the contact pairs stay those of the flat exact search."""
+    ta, tb = trees["noisy"], trees["torus"]
+    rng = np.random.default_rng(11)
+    fallbacks = {1: 0, 8: 0}
+    for _ in range(30):
+        pa = random_pose(rng)
+        direction = rng.normal(size=3)
+        pb = random_pose(rng, pa.position + direction / np.linalg.norm(direction) * 1.1)
+        flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False)
+        for iterations in fallbacks:
+            got = find_contacts(ta, pa, tb, pb, traversal=traversal, iterations=iterations)
+            np.testing.assert_array_equal(got.pairs, flat.pairs)
+            fallbacks[iterations] += got.stats.fallbacks
+        assert len(find_contacts(ta, pa, tb, pb, hierarchy=False, iterations=3).pairs) == len(
+            flat.pairs
+        )
+    assert fallbacks[8] < fallbacks[1], fallbacks
+
+
+@pytest.mark.parametrize("iterations", [0, -1, 1.5, True, "3"])
+def test_bad_iteration_counts_are_rejected(trees, iterations):
+    t, p = trees["box"], Pose.identity()
+    with pytest.raises(InvalidArgumentError, match="iterations"):
+        find_contacts(t, p, t, p, iterations=iterations)
