@@ -32,7 +32,7 @@ from .contacts import (
     query_parameters,
     spheres,
 )
-from .distance import _executor
+from .distance import DEFAULT_PRECISION, _executor
 from .errors import InvalidArgumentError
 from .kernels import batch as kb
 from .pose import Pose
@@ -43,6 +43,7 @@ __all__ = ["ContactBatch", "TreeBank", "find_contacts_batch"]
 MAX_LEVELS = 32
 """Per-level comparison counts kept per pair (deeper levels are counted, not kept)."""
 _PAIRS_PER_TASK = 64  # below this many pairs per worker, one thread is faster
+_CPUS = os.cpu_count() or 1  # looked up once: os.cpu_count() costs µs per call
 
 
 @dataclass(frozen=True)
@@ -196,7 +197,7 @@ class TreeBank:
     precision : "float32" or "float64"
     """
 
-    def __init__(self, trees: Sequence[SurrogateTree], precision: str = "float64") -> None:
+    def __init__(self, trees: Sequence[SurrogateTree], precision: str = DEFAULT_PRECISION) -> None:
         check_precision(precision)
         trees = list(trees)
         if not trees:
@@ -307,7 +308,7 @@ class TreeBank:
                 levels[start:stop],
             )
 
-        threads = threads or os.cpu_count() or 1
+        threads = threads or _CPUS
         if threads == 1 or k < 2 * _PAIRS_PER_TASK:
             parts = [run(0, k)]
         else:
@@ -328,7 +329,7 @@ def find_contacts_batch(
     queries: Sequence[tuple[SurrogateTree, Pose, SurrogateTree, Pose]],
     kernel: str = "hybrid",
     hierarchy: bool = True,
-    precision: str = "float64",
+    precision: str = DEFAULT_PRECISION,
     threads: int | None = None,
 ) -> list[ContactSet]:
     """:func:`~engine.contacts.find_contacts` for many ``(tree_a, pose_a, tree_b, pose_b)``.
@@ -375,7 +376,10 @@ def find_contacts_batch(
 
 
 def _join(parts, counts, levels) -> ContactBatch:
-    """Concatenate the ragged results of consecutive chunks."""
+    """Concatenate the ragged results of consecutive chunks (one chunk: as it is)."""
+    if len(parts) == 1:
+        p = parts[0]
+        return ContactBatch(p[0], p[1], p[2], p[3], p[4], p[5], levels, counts)
     pair_offsets, contact_offsets = [np.zeros(1, np.int64)], [np.zeros(1, np.int64)]
     for part in parts:
         pair_offsets.append(part[0][1:] + pair_offsets[-1][-1])
@@ -394,6 +398,8 @@ def _join(parts, counts, levels) -> ContactBatch:
 
 def _join_lists(parts) -> tuple:
     """The chunks' lists and reference poses, concatenated (see :class:`PairCache`)."""
+    if len(parts) == 1:
+        return parts[0][6:10]
     offsets = [np.zeros(1, np.int64)]
     for part in parts:
         offsets.append(part[6][1:] + offsets[-1][-1])

@@ -44,6 +44,10 @@ CELL_FACTOR = 1.5
 """Cell size of a level over its largest diameter."""
 BUCKET_LOAD = 2
 """Entries per hash bucket (rounded to a power of two of buckets)."""
+SMALL_SCENE = 32
+"""Up to this many bodies every pair is tested (``kernels.broadphase.all_pairs``): the
+grid's set-up (levels, hashing, sorting) costs tens of µs, a brute force 32 bodies
+under 2 µs (``benchmarks/broadphase.py``)."""
 _NO_PAIRS = np.zeros((0, 2), np.int64)
 
 
@@ -71,10 +75,18 @@ def candidate_pairs(centres, radii, fixed=None) -> np.ndarray:
     InvalidArgumentError
         Wrong shapes or dtypes, non-finite or too large values, negative radii.
     """
-    c, r, f = _check(centres, radii, fixed)
+    return overlapping_pairs(*_check(centres, radii, fixed))
+
+
+def overlapping_pairs(c: np.ndarray, r: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """:func:`candidate_pairs` of checked arrays, for callers that own them (a scene):
+    ``c (n, 3)``, ``r (n,)`` C-contiguous float64, finite, ``r ≥ 0``; ``f (n,)`` bool."""
     n = len(r)
     if n < 2 or f.all():
         return _NO_PAIRS.copy()
+    if n <= SMALL_SCENE:
+        out = np.empty((n * (n - 1) // 2, 2), np.int64)
+        return out[: kb.all_pairs(c, r, f, out)].copy()
     level, sizes, origin, reach = _grid(c, r)
 
     counts = np.empty(n, np.int64)

@@ -60,6 +60,8 @@ class _Front:
         self.folded: set[tuple[int, int]] = set()
         self.veto: set[tuple[int, int]] = set()
         self.groups: tuple | None = None  # sibling groups of the entries (see _narrow)
+        self.is_leaf: np.ndarray | None = None  # leaf–leaf entries (None: recompute)
+        self.static: tuple | None = None  # (key, the pair's pose-free kernel arguments)
 
 
 class MultiscaleSearch:
@@ -127,24 +129,15 @@ class MultiscaleSearch:
     def _evaluate(self, front, a, b, origins, orientations, counters):
         scene = self.scene
         ta, tb = scene.trees[scene.tree_index[a]], scene.trees[scene.tree_index[b]]
-        dtype = np.dtype(scene.precision).type
+        key = (id(ta), id(tb), scene.precision, scene.kernel)
+        if front.static is None or front.static[0] != key:
+            front.static = (key, _static(ta, tb, scene.precision, scene.kernel))
+        dtype, extents, body_a, body_b, constants, faces, coarse, leaf = front.static[1]
         rot_a, rotation, shift = relative_pose(
             origins[a], orientations[a], origins[b], orientations[b]
         )
-        margin = query_margin(extent(ta), extent(tb), shift, ULP[dtype])
-        set_a, master = _node_set(ta, scene.precision, False), _master(tb)
-        body_a = (set_a.coords_rm, set_a.frames_rm, *_structure(ta), spheres(ta))
-        body_b = (master.coords_rm, master.frames_rm, *_structure(tb), spheres(tb))
-        setup = (
-            ta.leaf_epsilon,
-            tb.leaf_epsilon,
-            TINY * max(ta.bounding_radius, tb.bounding_radius),
-            min(ta.leaf_epsilon, tb.leaf_epsilon),
-            rot_a,
-            origins[a].copy(),
-        )
-        contact = (len(_face_normals(tb)), scene.kernel != "iterative", _face_normals(ta), setup)
-        coarse, leaf = query_parameters(scene.kernel, dtype)
+        margin = query_margin(*extents, shift, ULP[dtype])
+        contact = (*faces, (*constants, rot_a, origins[a].copy()))
         stats = np.zeros(tb_kernels.N_STATS, np.int64)
 
         def evaluate(nodes: np.ndarray):
@@ -157,8 +150,10 @@ class MultiscaleSearch:
         status, (found, points, normals, overlaps), hits = evaluate(nodes)
         leaf_contacts = (points, normals, overlaps)
         surrogate = _surrogate_contacts(ta, tb, hits, rot_a, origins[a], scene.centers[a])
-        face_a, face_b = _structure(ta)[1], _structure(tb)[1]
-        is_leaf = (face_a[nodes[:, 0]] >= 0) & (face_b[nodes[:, 1]] >= 0)
+        if front.is_leaf is None:
+            face_a, face_b = _structure(ta)[1], _structure(tb)[1]
+            front.is_leaf = (face_a[nodes[:, 0]] >= 0) & (face_b[nodes[:, 1]] >= 0)
+        is_leaf = front.is_leaf
         front.quiet = status == 0
 
         def certainly_apart(pairs: np.ndarray) -> np.ndarray:
@@ -196,7 +191,7 @@ class MultiscaleSearch:
         keep[grow] = False
         front.nodes = np.concatenate([front.nodes[keep], kids])
         front.parents = np.concatenate([front.parents[keep], grown[group]])
-        front.groups = None
+        front.groups = front.is_leaf = None
         front.quiet = np.concatenate([front.quiet[keep], np.zeros(len(kids), bool)])
         return len(grow)
 
@@ -231,12 +226,35 @@ class MultiscaleSearch:
         front.folded.update(add)
         keep = np.ones(len(front.nodes), bool)
         keep[inner[np.isin(keys, fold)]] = False
-        front.groups = None
+        front.groups = front.is_leaf = None
         front.nodes = np.concatenate([front.nodes[keep], np.array(add, np.int64)])
         ups = np.array([front.up.get(k, (-1, -1)) for k in add], np.int64)
         front.parents = np.concatenate([front.parents[keep], ups])
         front.quiet = np.concatenate([front.quiet[keep], np.zeros(len(add), bool)])
         return len(add)
+
+
+def _static(ta, tb, precision: str, kernel: str) -> tuple:
+    """What :func:`~engine.kernels.traversal.front_kernel` takes for the trees ``ta``,
+    ``tb`` whatever their poses: ``(dtype, extents, body_a, body_b, the contact setup's
+    constants, (faces of B, keep_all, normals of A), coarse and leaf parameters)``."""
+    dtype = np.dtype(precision).type
+    set_a, master = _node_set(ta, precision, False), _master(tb)
+    constants = (
+        ta.leaf_epsilon,
+        tb.leaf_epsilon,
+        TINY * max(ta.bounding_radius, tb.bounding_radius),
+        min(ta.leaf_epsilon, tb.leaf_epsilon),
+    )
+    return (
+        dtype,
+        (extent(ta), extent(tb)),
+        (set_a.coords_rm, set_a.frames_rm, *_structure(ta), spheres(ta)),
+        (master.coords_rm, master.frames_rm, *_structure(tb), spheres(tb)),
+        constants,
+        (len(_face_normals(tb)), kernel != "iterative", _face_normals(ta)),
+        *query_parameters(kernel, dtype),
+    )
 
 
 def _fanout(tree, nodes: np.ndarray) -> np.ndarray:

@@ -109,7 +109,7 @@ def travel(scene, dt: float) -> tuple[float, int]:
     free = np.flatnonzero(~scene.fixed)
     if not len(free):
         return 0.0, -1
-    radius = _radii(scene)[free]
+    radius = _bodies(scene).radius[free]
     speed = np.linalg.norm(scene.velocities[free], axis=1) + radius * np.linalg.norm(
         scene.angular_velocities[free], axis=1
     )
@@ -192,10 +192,11 @@ def _explicit(scene, dt: float) -> dict:
 def _picard(scene, dt: float, search) -> dict:
     start = _state(scene)
     guess = tuple(a.copy() for a in start)
-    radius = _radii(scene)
+    radius = _bodies(scene).radius
     applied, residual, beta = None, [None, None], [1.0, 1.0]
     counters, converged, iterations, evaluations = [], False, 0, 0
     key = _evaluation_key(scene, search)
+    forceless = True  # no evaluation of this step has had a contact force so far
     while iterations < scene.max_picard_iterations:
         iterations += 1
         reused = _reused(scene, key, start) if iterations == 1 else None
@@ -205,6 +206,7 @@ def _picard(scene, dt: float, search) -> dict:
         else:
             evaluation = reused
         normal, friction, stiffness, contacts, energy, changed = evaluation
+        forceless = forceless and not stiffness.any()
         computed = (normal, friction)
         counters.append(contacts.counters if reused is None else _no_search(contacts.counters))
         if applied is None:  # the forces of the step's start, then the first relaxation
@@ -214,7 +216,8 @@ def _picard(scene, dt: float, search) -> dict:
             total = (normal[0] + friction[0], normal[1] + friction[1])
             change = [(c[0] - a[0], c[1] - a[1]) for c, a in zip(computed, applied, strict=True)]
             mismatch = (change[0][0] + change[1][0], change[0][1] + change[1][1])
-            settled = _settled(scene, total, mismatch, stiffness[:, 2], radius)
+            # body forces alone, every time: the applied forces are the computed ones exactly
+            settled = forceless or _settled(scene, total, mismatch, stiffness[:, 2], radius)
             converged = settled and not changed  # multiscale: nothing unfolded either
             if converged:
                 break
@@ -275,7 +278,8 @@ def _reused(scene, key, start):
     ):
         return None
     normal, friction, stiffness, contacts, energy, _ = evaluation
-    normal, friction = _moved_levers(scene, (normal, friction), origins, start[0])
+    if stiffness.any():  # else no contact force: the torques have no lever to move
+        normal, friction = _moved_levers(scene, (normal, friction), origins, start[0])
     return normal, friction, stiffness, contacts, energy, False
 
 
@@ -283,14 +287,12 @@ def _moved_levers(scene, forces, old, new):
     """``(normal, friction)`` force and torque pairs with the torques of the contact
     forces taken about ``new (n, 3)`` instead of ``old`` lever origins."""
     (normal, normal_torque), (friction, friction_torque) = forces
-    free = ~scene.fixed
-    body_force = np.zeros_like(normal)
-    body_force[free] = scene.masses[free, None] * scene.gravity + scene.external_forces[free]
+    bodies = _bodies(scene)
     lever = old - new
-    normal_torque = normal_torque + _cross(lever, normal - body_force)
+    normal_torque = normal_torque + _cross(lever, normal - bodies.force)
     friction_torque = friction_torque + _cross(lever, friction)
-    normal_torque[~free] = 0.0
-    friction_torque[~free] = 0.0
+    normal_torque[bodies.fixed] = 0.0
+    friction_torque[bodies.fixed] = 0.0
     return (normal, normal_torque), (friction, friction_torque)
 
 
@@ -317,7 +319,7 @@ def _first_weights(scene, stiffness, radius, dt: float) -> list[float]:
     """1/(1 + λ) for the normal and the friction forces, λ the largest per-body gain of a
     Picard sweep: dt²·Σk (spring) and dt·Σc (friction) times (1/m + R²/I_min)."""
     free = ~scene.fixed
-    if not free.any():
+    if not free.any() or not stiffness.any():  # no body, or no contact: no gain
         return [1.0, 1.0]
     smallest = _smallest_inertia(scene)[free]
     mobility = 1.0 / scene.masses[free] + radius[free] ** 2 / smallest
@@ -349,9 +351,53 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _radii(scene) -> np.ndarray:
-    """(n,) bounding radius of each body's mesh (a lever that makes torques force-like)."""
-    return np.array([max(t.bounding_radius, 1e-12) for t in scene.trees])[scene.tree_index]
+@dataclasses.dataclass(frozen=True)
+class _Bodies:
+    """Per-body terms that stay the same from one search to the next.
+
+    free : (n,) bool; fixed : (k,) int64 rows of the fixed bodies
+    force : (n, 3) float64 — weight plus external force (0 on fixed bodies)
+    size : (n,) float64 — m·|g| + |external force|
+    weight : float — the largest weight of a free body
+    radius : (n,) float64 — bounding radius of each body's mesh (a lever that makes
+        torques force-like)
+    inverse_mass : (n,) float64 — 0 for fixed bodies
+    """
+
+    free: np.ndarray
+    fixed: np.ndarray
+    force: np.ndarray
+    size: np.ndarray
+    weight: float
+    radius: np.ndarray
+    inverse_mass: np.ndarray
+
+
+def _bodies(scene) -> _Bodies:
+    """The scene's :class:`_Bodies`, rebuilt when bodies, masses, gravity or external
+    forces change (arrays compared by identity, gravity and forces by value)."""
+    arrays = (scene.masses, scene.fixed, scene.tree_index)
+    values = (scene.gravity.tobytes(), scene.external_forces.tobytes())
+    cached = scene.__dict__.get("_body_terms")
+    if (
+        cached is not None
+        and all(a is b for a, b in zip(cached[0], arrays, strict=True))
+        and cached[1] == values
+    ):
+        return cached[2]
+    free = ~scene.fixed
+    force = np.zeros((len(free), 3))
+    force[free] = scene.masses[free, None] * scene.gravity + scene.external_forces[free]
+    size = np.zeros(len(free))
+    size[free] = scene.masses[free] * np.linalg.norm(scene.gravity) + np.linalg.norm(
+        scene.external_forces[free], axis=1
+    )
+    radius = np.array([max(t.bounding_radius, 1e-12) for t in scene.trees])[scene.tree_index]
+    weight = float((scene.masses[free] * np.linalg.norm(scene.gravity)).max(initial=0.0))
+    inverse_mass = np.where(scene.fixed, 0.0, 1.0 / scene.masses)
+    terms = _Bodies(free, np.flatnonzero(scene.fixed), force, size, weight, radius, inverse_mass)
+    scene._body_terms = (arrays, values, terms)
+    return terms
 
 
 def _forces(scene, configuration, origins, search):
@@ -361,9 +407,8 @@ def _forces(scene, configuration, origins, search):
     normal forces only."""
     x, q, v, w = configuration
     contacts, surrogate, changed = search(x, q)
-    free = ~scene.fixed
-    force = np.zeros_like(x)
-    force[free] = scene.masses[free, None] * scene.gravity + scene.external_forces[free]
+    bodies = _bodies(scene)
+    force = bodies.force.copy()
     torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
     stiffness = np.zeros((len(x), 3))
     out = (force, torque, friction_force, friction_torque, stiffness)
@@ -382,8 +427,9 @@ def _forces(scene, configuration, origins, search):
                 parameters,
                 out,
             )
-    for array in (force, torque, friction_force, friction_torque):
-        array[~free] = 0.0
+    if len(bodies.fixed):
+        for array in (force, torque, friction_force, friction_torque):
+            array[bodies.fixed] = 0.0
     return (force, torque), (friction_force, friction_torque), stiffness, contacts, energy, changed
 
 
@@ -394,27 +440,20 @@ def _settled(scene, computed, mismatch, gross, radius) -> bool:
     (n,)`` plus its weight (a body squeezed between equal and opposite contacts has a
     near-zero net force; relative to it, no iteration would ever settle) — and torques by
     at most that times the lever ``radius``."""
-    free = ~scene.fixed
+    bodies = _bodies(scene)
+    free = bodies.free
     tolerance = scene.picard_tolerance
     force, torque = computed[0][free], computed[1][free]
-    body = scene.masses[free] * np.linalg.norm(scene.gravity) + np.linalg.norm(
-        scene.external_forces[free], axis=1
-    )
-    size_f = np.maximum(np.linalg.norm(force, axis=1), gross[free] + body)
+    size_f = np.maximum(np.linalg.norm(force, axis=1), gross[free] + bodies.size[free])
     size_t = np.maximum(np.linalg.norm(torque, axis=1), radius[free] * size_f)
-    floor = _ATOL * max(float(size_f.max(initial=0.0)), _weight_scale(scene))
+    floor = _ATOL * max(float(size_f.max(initial=0.0)), bodies.weight)
     bad_f = np.linalg.norm(mismatch[0][free], axis=1) > tolerance * size_f + floor
     bad_t = np.linalg.norm(mismatch[1][free], axis=1) > tolerance * size_t + floor * radius[free]
     return not (bad_f.any() or bad_t.any())
 
 
-def _weight_scale(scene) -> float:
-    free = ~scene.fixed
-    return float((scene.masses[free] * np.linalg.norm(scene.gravity)).max(initial=0.0))
-
-
 def _advance(scene, start, force, torque, dt: float, out) -> None:
-    inverse_mass = np.where(scene.fixed, 0.0, 1.0 / scene.masses)
+    inverse_mass = _bodies(scene).inverse_mass
     kd.advance(start, force, torque, inverse_mass, scene.inertia, scene.inverse_inertia, dt, out)
 
 

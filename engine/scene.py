@@ -27,12 +27,15 @@ from .arguments import (
     check_quaternions,
     check_rows,
     check_vector,
+    coordinate_limit,
 )
 from .batch import PairCache, TreeBank
-from .broadphase import candidate_pairs
+from .broadphase import overlapping_pairs
 from .contacts import find_contacts, spheres
+from .distance import DEFAULT_PRECISION
 from .errors import InvalidArgumentError, InvalidMeshError
 from .forces import ContactModel, PaperSpring
+from .kernels import batch as kb
 from .kernels import dynamics as kd
 from .mesh import Mesh
 from .pose import Pose
@@ -105,7 +108,8 @@ class Scene:
     gravity : (3,) float — acceleration of every free body (default −9.81 along z)
     contact_model : ContactModel — force law (default :class:`~engine.forces.PaperSpring`)
     scheme : str — default time-stepping scheme, one of :data:`SCHEMES`
-    kernel, precision : the contact search's leaf kernel and arithmetic
+    kernel, precision : the contact search's leaf kernel and arithmetic (default hybrid in
+        float64: BENCHMARKS.md; the state, forces and integration are float64 regardless)
     picard_tolerance : float — Picard converges when every body's force and torque
         change by less than this fraction between iterations (the paper's 1 %)
     max_picard_iterations : int
@@ -128,7 +132,7 @@ class Scene:
         contact_model: ContactModel | None = None,
         scheme: str = "implicit-surrogate",
         kernel: str = "hybrid",
-        precision: str = "float64",
+        precision: str = DEFAULT_PRECISION,
         picard_tolerance: float = 0.01,
         max_picard_iterations: int = 50,
         max_halvings: int = 0,
@@ -416,29 +420,44 @@ class Scene:
         rot = np.empty((len(self), 3, 3))
         kd.rotation_matrices(orientations, rot)
         origins = positions - np.einsum("bij,bj->bi", rot, self.centers)
-        roots = np.array([spheres(t)[0] for t in self.trees])[self.tree_index]
+        roots = self._roots()
         centres = origins + np.einsum("bij,bj->bi", rot, roots[:, :3])
-        return origins, candidate_pairs(centres, roots[:, 3], self.fixed)
+        if not (np.abs(centres) <= coordinate_limit(np.float64)).all():  # NaN fails too
+            bad = int(np.flatnonzero(~(np.abs(centres) <= coordinate_limit(np.float64)))[0])
+            raise InvalidArgumentError(
+                f"body {bad // 3} is not at a finite position within the broad phase's range"
+            )
+        return origins, overlapping_pairs(centres, np.ascontiguousarray(roots[:, 3]), self.fixed)
+
+    def _roots(self) -> np.ndarray:
+        """(n, 4) root bounding sphere (body frame) of each body, kept while the bodies
+        are the same (adding bodies replaces ``tree_index``)."""
+        cached = self.__dict__.get("_root_spheres")
+        if cached is None or cached[0] is not self.tree_index:
+            roots = np.array([spheres(t)[0] for t in self.trees])[self.tree_index]
+            cached = self._root_spheres = (self.tree_index, roots)
+        return cached[1]
 
     def contacts(self, positions, orientations, hierarchy: bool = True) -> Contacts:
         """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``."""
         origins, pairs = self.configuration(positions, orientations)
         counters = dict.fromkeys(SEARCH_COUNTERS, 0)
         if hierarchy:
-            batch = self.bank.find_contacts(
-                self.tree_index[pairs[:, 0]],
-                origins[pairs[:, 0]],
-                orientations[pairs[:, 0]],
-                self.tree_index[pairs[:, 1]],
-                origins[pairs[:, 1]],
-                orientations[pairs[:, 1]],
-                kernel=self.kernel,
-                threads=self.threads,
-                cache=self.pair_cache,
-                keys=pairs[:, 0] * len(self) + pairs[:, 1],
+            # the scene's own arrays: the bank's checks are skipped (pairs are distinct by
+            # construction), and the orientations are normalised as they would normalise them
+            unit = orientations / np.linalg.norm(orientations, axis=1)[:, None]
+            a, b = pairs[:, 0], pairs[:, 1]
+            queries = (
+                self.tree_index[a],
+                self.tree_index[b],
+                origins[a],
+                unit[a],
+                origins[b],
+                unit[b],
             )
-            from .kernels import batch as kb
-
+            keys = a * len(self) + b
+            batch = self.bank._run(queries, self.kernel, self.threads, self.pair_cache, keys)
+            totals = batch.counts.sum(axis=0)
             for name, column in (
                 ("comparisons", kb.COUNT_COMPARISONS),
                 ("iterative", kb.COUNT_ITERATIVE),
@@ -447,7 +466,7 @@ class Scene:
                 ("unfoldings", kb.COUNT_UNFOLDINGS),
                 ("listed", kb.COUNT_LISTED),
             ):
-                counters[name] = int(batch.counts[:, column].sum())
+                counters[name] = int(totals[column])
             counters["triangle_pairs"] = len(batch.pairs)
             return Contacts(
                 pairs, batch.contact_offsets, batch.points, batch.normals, batch.overlaps, counters
@@ -497,8 +516,12 @@ class Scene:
 
     @property
     def epsilon(self) -> np.ndarray:
-        """(n,) ε of each body (its tree's leaf ε)."""
-        return np.array([t.leaf_epsilon for t in self.trees])[self.tree_index]
+        """(n,) ε of each body (its tree's leaf ε; kept while the bodies are the same)."""
+        cached = self.__dict__.get("_epsilon")
+        if cached is None or cached[0] is not self.tree_index:
+            epsilon = np.array([t.leaf_epsilon for t in self.trees])[self.tree_index]
+            cached = self._epsilon = (self.tree_index, epsilon)
+        return cached[1]
 
     # ------------------------------------------------------------------ helpers
     def _tree(self, body, epsilon) -> tuple[SurrogateTree, Mesh]:

@@ -67,10 +67,10 @@ class Sleep:
         return dataclasses.replace(stats, sleeping=int(self.asleep.sum()))
 
     def _update(self, scene) -> None:
-        from .picard import _radii
+        from .picard import _bodies
 
         free = ~scene.fixed
-        speed = np.linalg.norm(scene.velocities, axis=1) + _radii(scene) * np.linalg.norm(
+        speed = np.linalg.norm(scene.velocities, axis=1) + _bodies(scene).radius * np.linalg.norm(
             scene.angular_velocities, axis=1
         )
         awake = free & ~self.asleep

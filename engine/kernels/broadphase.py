@@ -190,6 +190,28 @@ def bucket_pairs(starts, bodies, tags, centres, radii, fixed, offsets, out, foun
 
 
 @njit(**EXACT)
+def all_pairs(centres, radii, fixed, out):
+    """Every pair ``i < j`` whose spheres overlap, unless both ``fixed``, by brute force
+    (for a handful of bodies, where the grid's set-up costs more): the test of
+    :func:`bucket_pairs`, in lexicographic order, into ``out (≥ n(n − 1)/2, 2)`` int64;
+    returns the count."""
+    n = radii.shape[0]
+    k = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            if fixed[i] and fixed[j]:
+                continue
+            dx = centres[i, 0] - centres[j, 0]
+            dy = centres[i, 1] - centres[j, 1]
+            dz = centres[i, 2] - centres[j, 2]
+            s = radii[i] + radii[j]
+            if dx * dx + dy * dy + dz * dz <= s * s:
+                out[k, 0], out[k, 1] = i, j
+                k += 1
+    return k
+
+
+@njit(**EXACT)
 def sort_pairs(pairs, offsets, found, n, out):
     """Rows ``offsets[u]:offsets[u] + found[u]`` of ``pairs (K, 2)`` int64, sorted
     lexicographically and without repeats, into ``out (≥ k, 2)`` int64; returns ``k``.

@@ -107,6 +107,19 @@ def test_tuning_never_changes_the_result(monkeypatch, name, value):
     np.testing.assert_array_equal(candidate_pairs(centres, radii, fixed), want)
 
 
+@pytest.mark.parametrize("small", [0, 10**6])
+@pytest.mark.parametrize("n", [2, 7, 32, 33, 300])
+def test_brute_force_and_grid_paths_agree(monkeypatch, small, n):
+    """Every scene through the brute force (small scenes) and through the grid alike:
+    touching lattice spheres (exact arithmetic), coincident centres, fixed bodies."""
+    rng = np.random.default_rng(n)
+    centres = rng.integers(0, 6, (n, 3)) / 2.0
+    radii = rng.integers(0, 3, n) / 2.0
+    fixed = rng.random(n) < 0.3
+    monkeypatch.setattr(bp, "SMALL_SCENE", small)
+    check(centres, radii, fixed)
+
+
 def test_packed_grid_finds_exactly_the_face_neighbours():
     """8 × 8 × 8 unit-diameter spheres at spacing 0.995: each overlaps its face
     neighbours only (diagonals are 1.407 apart)."""
