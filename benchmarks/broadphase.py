@@ -34,8 +34,9 @@ from numba import njit
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common import best_time  # noqa: E402
+from common import best_time, per_call  # noqa: E402
 
+import engine.broadphase as bp  # noqa: E402
 from engine.broadphase import _grid, candidate_pairs  # noqa: E402
 
 OUT = ROOT / "bench-results"
@@ -157,8 +158,34 @@ def main() -> None:
             f" {row['ns_per_body']:8.0f}"
             + (f" {brute:9.1f} {brute / row['ms']:7.0f}x" if brute else f" {'-':>9s} {'-':>8s}")
         )
-    (OUT / "broadphase.json").write_text(json.dumps({"machine": info, "scenes": rows}, indent=2))
+    small = small_scenes()
+    result = {"machine": info, "scenes": rows, "small": small}
+    (OUT / "broadphase.json").write_text(json.dumps(result, indent=2))
     print(f"wrote {OUT / 'broadphase.json'}")
+
+
+def small_scenes() -> list[dict]:
+    """A few bodies (the paper's two-body scenes, small piles): the whole call through the
+    grid and through the brute force (``SMALL_SCENE`` chooses; same pairs)."""
+    rng = np.random.default_rng(3)
+    print(f"\n{'bodies':>8s} {'pairs':>6s} {'grid us':>8s} {'brute us':>9s}  (whole call)")
+    rows = []
+    default = bp.SMALL_SCENE
+    for n in (2, 4, 8, 16, 32, 64, 128, 256):
+        centres = rng.uniform(0, (n / 0.3) ** (1 / 3), (n, 3))  # a few neighbours each
+        radii, fixed = np.full(n, 0.5), np.zeros(n, bool)
+        times = {}
+        for path, limit in (("grid", 0), ("brute", 10**9)):
+            bp.SMALL_SCENE = limit
+            times[path] = per_call(lambda c=centres, r=radii, f=fixed: candidate_pairs(c, r, f))
+            pairs = candidate_pairs(centres, radii, fixed)
+        bp.SMALL_SCENE = default
+        assert np.array_equal(pairs, candidate_pairs(centres, radii, fixed))
+        row = {"bodies": n, "pairs": len(pairs), **{f"{k}_us": v * 1e6 for k, v in times.items()}}
+        rows.append(row)
+        print(f"{n:8d} {len(pairs):6d} {row['grid_us']:8.1f} {row['brute_us']:9.1f}")
+    print(f"SMALL_SCENE = {default}: the brute force up to that many bodies")
+    return rows
 
 
 if __name__ == "__main__":

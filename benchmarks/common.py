@@ -29,15 +29,13 @@ def per_call(fn, calls: int = 200, repeat: int = 7) -> float:
     return best
 
 
-def pareto_front(rows: list[dict], cost: str, error: str) -> list[dict]:
-    """The rows no other row beats in both ``cost`` and ``error`` (lower is better)."""
+def pareto_front(rows: list[dict], cost: str, error: str | tuple[str, ...]) -> list[dict]:
+    """The rows no other row beats in ``cost`` and every ``error`` (lower is better): a row
+    is dominated by one at most as costly and at most as wrong in every error, and better
+    in one of them."""
+    keys = (cost, *((error,) if isinstance(error, str) else error))
     return [
         r
         for r in rows
-        if not any(
-            o[cost] <= r[cost]
-            and o[error] <= r[error]
-            and (o[cost] < r[cost] or o[error] < r[error])
-            for o in rows
-        )
+        if not any(all(o[k] <= r[k] for k in keys) and any(o[k] < r[k] for k in keys) for o in rows)
     ]
