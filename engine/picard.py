@@ -441,15 +441,17 @@ def _settled(scene, computed, mismatch, gross, radius) -> bool:
     near-zero net force; relative to it, no iteration would ever settle) — and torques by
     at most that times the lever ``radius``."""
     bodies = _bodies(scene)
-    free = bodies.free
-    tolerance = scene.picard_tolerance
-    force, torque = computed[0][free], computed[1][free]
-    size_f = np.maximum(np.linalg.norm(force, axis=1), gross[free] + bodies.size[free])
-    size_t = np.maximum(np.linalg.norm(torque, axis=1), radius[free] * size_f)
-    floor = _ATOL * max(float(size_f.max(initial=0.0)), bodies.weight)
-    bad_f = np.linalg.norm(mismatch[0][free], axis=1) > tolerance * size_f + floor
-    bad_t = np.linalg.norm(mismatch[1][free], axis=1) > tolerance * size_t + floor * radius[free]
-    return not (bad_f.any() or bad_t.any())
+    return kd.settled(
+        computed,
+        mismatch,
+        gross,
+        bodies.size,
+        radius,
+        scene.fixed,
+        scene.picard_tolerance,
+        _ATOL,
+        bodies.weight,
+    )
 
 
 def _advance(scene, start, force, torque, dt: float, out) -> None:

@@ -9,6 +9,7 @@ import numpy as np
 
 from .arguments import KERNELS, PRECISIONS
 from .batch import find_contacts_batch
+from .broadphase import SMALL_SCENE, candidate_pairs
 from .contacts import find_contacts
 from .distance import TriangleSet, triangle_contacts, triangle_distances
 from .picard import TunnellingWarning
@@ -50,6 +51,8 @@ def warmup() -> float:
                     hierarchy=hierarchy,
                     precision=precision,
                 )
+    many = np.arange(3 * (SMALL_SCENE + 1), dtype=float).reshape(-1, 3)  # the grid path
+    candidate_pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
     scene = Scene(gravity=(0.0, 0.0, -9.81))  # broad phase, forces, motion update
     scene.add_plane(size=4.0, divisions=2)
     scene.add_body(box(), position=(0.0, 0.0, 0.505), angular_velocity=(0.0, 0.0, 1.0))

@@ -122,6 +122,44 @@ def contact_forces(bodies, offsets, points, normals, overlaps, state, params, la
 
 
 @njit(**JIT)
+def settled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol, weight):
+    """Picard's convergence test (see ``engine.picard._settled``): every free body's
+    force mismatch within ``tolerance`` of the forces acting on it, size_f = max(|F|,
+    gross + body_size), and its torque mismatch within ``tolerance`` of max(|τ|, R·size_f),
+    each plus a floor ``atol · max(max size_f, weight)`` (times R for torques).
+    ``computed``, ``mismatch`` = ``(force (n, 3), torque (n, 3))``; ``gross``,
+    ``body_size``, ``radius (n,)`` float64; ``fixed (n,)`` bool."""
+    force, torque = computed
+    mismatch_f, mismatch_t = mismatch
+    n = force.shape[0]
+    largest = 0.0
+    for b in range(n):
+        if not fixed[b]:
+            largest = max(largest, _size(force, b, gross[b] + body_size[b]))
+    floor = atol * max(largest, weight)
+    for b in range(n):
+        if fixed[b]:
+            continue
+        size_f = _size(force, b, gross[b] + body_size[b])
+        size_t = _size(torque, b, radius[b] * size_f)
+        if _norm(mismatch_f, b) > tolerance * size_f + floor:
+            return False
+        if _norm(mismatch_t, b) > tolerance * size_t + floor * radius[b]:
+            return False
+    return True
+
+
+@njit(**JIT)
+def _norm(rows, b):
+    return np.sqrt(rows[b, 0] * rows[b, 0] + rows[b, 1] * rows[b, 1] + rows[b, 2] * rows[b, 2])
+
+
+@njit(**JIT)
+def _size(rows, b, least):
+    return max(_norm(rows, b), least)
+
+
+@njit(**JIT)
 def _apply(force, torque, origins, body, p0, p1, p2, g0, g1, g2):
     """Add force ``g`` at point ``p`` to ``body`` (moment about ``origins[body]``)."""
     r0, r1, r2 = p0 - origins[body, 0], p1 - origins[body, 1], p2 - origins[body, 2]

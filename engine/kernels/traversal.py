@@ -213,6 +213,8 @@ def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params
     to_move = np.empty(m, np.int64)
     leaves = np.empty((m, 2), np.int64)
     coarse = np.empty((m, 2), np.int64)
+    entry_of_leaf = np.empty(m, np.int64)  # the entry each listed row came from
+    entry_of_coarse = np.empty(m, np.int64)
     new, nl, nc, pruned = ZERO, ZERO, ZERO, ZERO
     for t in range(m):
         i, j = nodes[t, 0], nodes[t, 1]
@@ -225,9 +227,11 @@ def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params
             new += 1
         if face_a[i] >= 0 and face_b[j] >= 0:
             leaves[nl, 0], leaves[nl, 1] = i, j
+            entry_of_leaf[nl] = t
             nl += 1
         else:
             coarse[nc, 0], coarse[nc, 1] = i, j
+            entry_of_coarse[nc] = t
             nc += 1
     stats[STAT_SPHERES] += pruned
     rm, eps_a, eps_b = _posed(body_a, body_b, pose, margin, to_move[:new])
@@ -236,15 +240,18 @@ def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params
     h = listed_kernel(rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, buffers, hits, ZERO, stats)
     found = result_buffers(max(nl, 1), coords_a)
     n = listed_kernel(rm, eps_a, eps_b, leaves, ZERO, nl, leaf_params, buffers, found, ZERO, stats)
-    # each reported pair's status onto its entry (entries are distinct node pairs)
-    keys = nodes[:, 0] * nb + nodes[:, 1]
-    order = np.argsort(keys)
-    sorted_keys = keys[order]
+    # each reported pair's status onto its entry: listed_kernel reports a subsequence of
+    # its list, in order, so one forward walk over the list finds every row
     status = np.zeros(m, np.int8)
-    for out, k in ((hits, h), (found, n)):
+    for out, k, listed, entry, rows in (
+        (hits, h, coarse, entry_of_coarse, nc),
+        (found, n, leaves, entry_of_leaf, nl),
+    ):
+        p = ZERO
         for r in range(k):
-            at = np.searchsorted(sorted_keys, out[0][r] * nb + out[1][r])
-            status[order[at]] = out[5][r]
+            while p < rows and (listed[p, 0] != out[0][r] or listed[p, 1] != out[1][r]):
+                p += 1
+            status[entry[min(p, rows - 1)]] = out[5][r]
     trimmed = (
         hits[0][:h].copy(),
         hits[1][:h].copy(),
