@@ -177,13 +177,7 @@ def bucket_pairs(starts, bodies, tags, centres, radii, fixed, offsets, out, foun
                 if (tag | t) & 7 != 7 or (tag ^ t) >> 3 != 0:
                     continue
                 j = bodies[q]
-                if j == i or (fixed[i] and fixed[j]):
-                    continue
-                dx = centres[i, 0] - centres[j, 0]
-                dy = centres[i, 1] - centres[j, 1]
-                dz = centres[i, 2] - centres[j, 2]
-                s = radii[i] + radii[j]
-                if dx * dx + dy * dy + dz * dz <= s * s:
+                if j != i and _candidate(centres, radii, fixed, i, j):
                     out[k, 0], out[k, 1] = min(i, j), max(i, j)
                     k += 1
         found[u] = k - offsets[u]
@@ -199,16 +193,23 @@ def all_pairs(centres, radii, fixed, out):
     k = 0
     for i in range(n):
         for j in range(i + 1, n):
-            if fixed[i] and fixed[j]:
-                continue
-            dx = centres[i, 0] - centres[j, 0]
-            dy = centres[i, 1] - centres[j, 1]
-            dz = centres[i, 2] - centres[j, 2]
-            s = radii[i] + radii[j]
-            if dx * dx + dy * dy + dz * dz <= s * s:
+            if _candidate(centres, radii, fixed, i, j):
                 out[k, 0], out[k, 1] = i, j
                 k += 1
     return k
+
+
+@njit(**EXACT_INLINE)
+def _candidate(centres, radii, fixed, i, j):
+    """Bodies ``i`` and ``j`` are a candidate pair: not both fixed, and
+    ``dx² + dy² + dz² ≤ (r_i + r_j)²`` in exactly this float64 order."""
+    if fixed[i] and fixed[j]:
+        return False
+    dx = centres[i, 0] - centres[j, 0]
+    dy = centres[i, 1] - centres[j, 1]
+    dz = centres[i, 2] - centres[j, 2]
+    s = radii[i] + radii[j]
+    return dx * dx + dy * dy + dz * dz <= s * s
 
 
 @njit(**EXACT)
