@@ -228,7 +228,7 @@ def levels() -> dict:
         total = sum(b["comparisons"] for b in base)
         assert total == engine_count, (name, total, engine_count)  # the replay is the engine's
         depth_count = max(len(b["levels"]) for b in base)
-        print(f"\n== levels, {name}: {len(queries)} poses near contact, {total:,} comparisons")
+        print(f"\n== levels, {name}: {len(queries)} poses, {total:,} comparisons")
         print(f"{'level':>6s}{'pairs':>8s}{'pass':>8s}{'pass %':>8s}{'skip it: comparisons':>22s}")
         rows = []
         for level in range(depth_count):
