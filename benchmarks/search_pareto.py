@@ -192,6 +192,7 @@ def plot(results: dict, target: Path) -> None:
     contacts are left out; a zero error is drawn at 1e-9)."""
     try:
         import matplotlib
+        import matplotlib.ticker
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
@@ -206,9 +207,14 @@ def plot(results: dict, target: Path) -> None:
             ax.scatter(r["seconds"], max(r["point"], 1e-9), marker=marker, color=color)
         front = sorted(result["pareto"], key=lambda r: r["seconds"])
         ax.plot([r["seconds"] for r in front], [max(r["point"], 1e-9) for r in front], "k--")
-        for r in front:
-            ax.annotate(label(r), (r["seconds"], max(r["point"], 1e-9)), fontsize=7)
+        named = set()
+        for r in front:  # the fastest of each error level is named
+            level = f"{max(r['point'], 1e-9):.1e}"
+            if level not in named:
+                named.add(level)
+                ax.annotate(label(r), (r["seconds"], max(r["point"], 1e-9)), fontsize=7)
         ax.set(xscale="log", yscale="log", xlabel="seconds", ylabel="largest point error")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_title(f"{name} (o hierarchy, x flat; blue exact, orange hybrid)", fontsize=9)
     fig.tight_layout()
     fig.savefig(target, dpi=120)
