@@ -21,6 +21,7 @@ from .distance import (
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
 from .forces import ContactModel, HertzSpring, LinearSpring, PaperSpring
 from .mesh import MassProperties, Mesh, load_mesh
+from .mesh_distance import MeshDistance, mesh_distance
 from .picard import StepStats, TunnellingWarning
 from .pose import Pose
 from .scene import SCHEMES, Scene, SceneState
@@ -65,6 +66,8 @@ __all__ = [
     "SurrogateTree",
     "build_tree",
     "load_mesh",
+    "MeshDistance",
+    "mesh_distance",
     "scenarios",
     "shapes",
 ]
