@@ -21,9 +21,9 @@ from .distance import (
 from .errors import EngineError, InvalidArgumentError, InvalidMeshError
 from .forces import ContactModel, HertzSpring, LinearSpring, PaperSpring
 from .mesh import MassProperties, Mesh, load_mesh
-from .mesh_distance import MeshDistance, mesh_distance
 from .picard import StepStats, TunnellingWarning
 from .pose import Pose
+from .proximity import MeshDistance, mesh_distance
 from .scene import SCHEMES, Scene, SceneState
 from .tree import SurrogateTree, TreeStats, build_tree
 from .warmup import warmup

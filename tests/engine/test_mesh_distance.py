@@ -33,7 +33,7 @@ MESHES = {
     "noisy": lambda: shapes.noisy_sphere(subdivisions=1, eta_r=1.4, seed=3),
 }
 PAIRS = [("ico80", "ico320"), ("torus", "torus"), ("ico320", "noisy"), ("noisy", "torus")]
-md = importlib.import_module("engine.mesh_distance")  # the package re-exports the function
+md = importlib.import_module("engine.proximity")
 TOL = 1e-12  # relative to the scene's size
 PROPS = settings(
     max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow], database=None
