@@ -46,6 +46,8 @@ __all__ = ["StepStats", "TunnellingWarning", "step", "travel"]
 BETA_MAX = 1.5
 BETA_MIN = 0.01
 _ATOL = 1e-9
+SWITCH_AFTER = 8
+"""Picard iterations after which a step may settle on a contact-set switch (:func:`_switch`)."""
 
 
 @dataclass(frozen=True)
@@ -197,6 +199,7 @@ def _picard(scene, dt: float, search) -> dict:
     counters, converged, iterations, evaluations = [], False, 0, 0
     key = _evaluation_key(scene, search)
     forceless = True  # no evaluation of this step has had a contact force so far
+    recent: list[tuple[np.ndarray, np.ndarray]] = []  # the last computed totals
     while iterations < scene.max_picard_iterations:
         iterations += 1
         reused = _reused(scene, key, start) if iterations == 1 else None
@@ -218,6 +221,13 @@ def _picard(scene, dt: float, search) -> dict:
             mismatch = (change[0][0] + change[1][0], change[0][1] + change[1][1])
             # body forces alone, every time: the applied forces are the computed ones exactly
             settled = forceless or _settled(scene, total, mismatch, stiffness[:, 2], radius)
+            recent = [*recent[-3:], total]
+            if not settled and iterations > SWITCH_AFTER:
+                applied_total = (
+                    applied[0][0] + applied[1][0],
+                    applied[0][1] + applied[1][1],
+                )
+                settled = _switch(scene, recent, applied_total, stiffness[:, 2], radius)
             converged = settled and not changed  # multiscale: nothing unfolded either
             if converged:
                 break
@@ -452,6 +462,43 @@ def _settled(scene, computed, mismatch, gross, radius) -> bool:
         _ATOL,
         bodies.weight,
     )
+
+
+def _switch(scene, recent, applied, gross, radius) -> bool:
+    """Settled on a switch of the contact set: the last computed totals ``recent`` (force,
+    torque pairs) take two values A and B in turn — each repeats within the Picard
+    tolerance and they differ by more — and the applied totals lie within the tolerance of
+    the segment from A to B (one weight for the whole scene).
+
+    The merged contact forces jump where a contact point joins or leaves a cluster (the
+    merge radius is a threshold), and a step that ends at such a configuration has no
+    fixed point: its iterates flip between the two contact sets forever (measured: a box
+    resting on a plane, 68,000 steps in, ±0.5 N on a 9.81 N weight). The forces of a
+    configuration on the switch are taken as the combination of the two one-sided limits
+    that the iteration converges to, as for any discontinuous right-hand side (Filippov)."""
+    if len(recent) < 4:
+        return False
+    last = recent[-1]
+    same = [_settled(scene, last, (r[0] - last[0], r[1] - last[1]), gross, radius) for r in recent]
+    side_a = [r for r, s in zip(recent, same, strict=True) if s]
+    side_b = [r for r, s in zip(recent, same, strict=True) if not s]
+    if len(side_a) < 2 or len(side_b) < 2:
+        return False
+    first_b = side_b[0]
+    if not all(
+        _settled(scene, first_b, (r[0] - first_b[0], r[1] - first_b[1]), gross, radius)
+        for r in side_b
+    ):
+        return False
+    a = [np.mean([r[k] for r in side_a], axis=0) for k in range(2)]
+    b = [np.mean([r[k] for r in side_b], axis=0) for k in range(2)]
+    span = np.concatenate([(b[0] - a[0]).ravel(), ((b[1] - a[1]) / radius[:, None]).ravel()])
+    offset = np.concatenate(
+        [(applied[0] - a[0]).ravel(), ((applied[1] - a[1]) / radius[:, None]).ravel()]
+    )
+    t = float(np.clip(offset @ span / (span @ span), 0.0, 1.0)) if span @ span > 0 else 0.0
+    point = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]))
+    return _settled(scene, applied, (applied[0] - point[0], applied[1] - point[1]), gross, radius)
 
 
 def _advance(scene, start, force, torque, dt: float, out) -> None:
