@@ -55,10 +55,10 @@ costs more than the few fallbacks it saves (2.5% at 1 sweep, 1.6% at 3, 1.1% at 
 DEFAULT_PRECISION = "float64"
 """Arithmetic of the contact search (``find_contacts``, batches, scenes). BENCHMARKS.md: on
 contact queries alone float32 finds exactly the float64 oracle's pairs with hybrid's contact
-geometry unchanged, in 6–8 % less time (``benchmarks/search_pareto.py``); but in a scene its
+geometry unchanged, in 3.5–6 % less time (``benchmarks/search_pareto.py``); but in a scene its
 rounding moves the contact points of parallel faces from one Picard iteration to the next,
-and implicit Picard stops converging on a resting box stack (float64: 3.0 iterations a step;
-float32: non-convergence from step 4 on, ``benchmarks/precision.py``). Poses, velocities and
+and implicit Picard stops converging on a resting box stack (float64: 3.4 iterations a step;
+float32: 286 of 320 steps not converged, ``benchmarks/precision.py``). Poses, velocities and
 forces are float64 whatever this is."""
 DEFAULT_RTOL = 0.01
 """Converged when the certified gap ``U − L`` is at most ``rtol·ε`` (plus rounding)."""
