@@ -130,12 +130,7 @@ def find_contacts(
     -------
     ContactSet
     """
-    for name, tree in (("tree_a", tree_a), ("tree_b", tree_b)):
-        if not isinstance(tree, SurrogateTree):
-            raise InvalidArgumentError(f"{name} must be a SurrogateTree")
-    for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
-        if not isinstance(pose, Pose):
-            raise InvalidArgumentError(f"{name} must be a Pose")
+    check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     check_kernel(kernel), check_precision(precision)  # validate before any work
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
@@ -167,6 +162,17 @@ def find_contacts(
         result = (result[0][:m], result[1][:k], result[2][:k], result[3][:k])
     stats = ContactStats(*counters[:4], len(result[0]), len(result[1]), *counters[4:])
     return ContactSet(*result, stats)
+
+
+def check_posed_pair(tree_a, pose_a, tree_b, pose_b) -> None:
+    """Raise :class:`InvalidArgumentError` unless the trees are SurrogateTrees and the
+    poses Poses."""
+    for name, tree in (("tree_a", tree_a), ("tree_b", tree_b)):
+        if not isinstance(tree, SurrogateTree):
+            raise InvalidArgumentError(f"{name} must be a SurrogateTree")
+    for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
+        if not isinstance(pose, Pose):
+            raise InvalidArgumentError(f"{name} must be a Pose")
 
 
 def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:

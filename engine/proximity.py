@@ -48,9 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .arguments import check_precision, kernel_constants
-from .contacts import ULP, _master, _node_set, extent, spheres
+from .contacts import ULP, _master, _node_set, check_posed_pair, extent, spheres
 from .distance import DEFAULT_ITERATIONS, DEFAULT_RTOL
-from .errors import InvalidArgumentError
 from .kernels import triangle_batch as tb
 from .kernels.batch import query_margin, relative_pose
 from .kernels.rigid import move_kernel
@@ -109,12 +108,7 @@ def mesh_distance(
     -------
     MeshDistance
     """
-    for name, tree in (("tree_a", tree_a), ("tree_b", tree_b)):
-        if not isinstance(tree, SurrogateTree):
-            raise InvalidArgumentError(f"{name} must be a SurrogateTree")
-    for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
-        if not isinstance(pose, Pose):
-            raise InvalidArgumentError(f"{name} must be a Pose")
+    check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     dtype = check_precision(precision)
     _, rotation, shift = relative_pose(
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
