@@ -34,7 +34,7 @@ OUT = ROOT / "bench-results"
 CHECK = 0.02
 REFERENCE_DT = 2e-5
 DTS = (5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 4e-3)
-SCHEMES = ("explicit", "implicit-surrogate", "multiscale")
+SCHEMES = ("explicit", "implicit-surrogate", "implicit-midpoint", "multiscale")
 
 
 def box_stack(scheme: str):

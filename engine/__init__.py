@@ -24,7 +24,7 @@ from .mesh import MassProperties, Mesh, load_mesh
 from .picard import StepStats, TunnellingWarning
 from .pose import Pose
 from .proximity import MeshDistance, mesh_distance
-from .scene import SCHEMES, Scene, SceneState
+from .scene import DEFAULT_SCHEME, SCHEMES, Scene, SceneState
 from .tree import SurrogateTree, TreeStats, build_tree
 from .warmup import warmup
 
@@ -40,6 +40,7 @@ __all__ = [
     "LinearSpring",
     "PaperSpring",
     "SCHEMES",
+    "DEFAULT_SCHEME",
     "Scene",
     "SceneState",
     "StepStats",

@@ -45,7 +45,11 @@ from .tree import SurrogateTree, build_tree
 
 __all__ = ["SCHEMES", "Scene", "SceneState"]
 
-SCHEMES = ("explicit", "implicit", "implicit-surrogate", "multiscale")
+SCHEMES = ("explicit", "implicit", "implicit-surrogate", "implicit-midpoint", "multiscale")
+DEFAULT_SCHEME = "implicit-midpoint"
+"""The scheme on every measured run-time-against-error front (``benchmarks/accuracy.py``,
+BENCHMARKS.md): at dt = 1e-3 on the resting box stack, where explicit diverges from 2e-3,
+and on the two-body collisions, where backward Euler's dissipation put it off the front."""
 SEARCH_COUNTERS = (
     "comparisons",
     "iterative",
@@ -107,7 +111,8 @@ class Scene:
     ----------
     gravity : (3,) float — acceleration of every free body (default −9.81 along z)
     contact_model : ContactModel — force law (default :class:`~engine.forces.PaperSpring`)
-    scheme : str — default time-stepping scheme, one of :data:`SCHEMES`
+    scheme : str — default time-stepping scheme, one of :data:`SCHEMES` (default
+        :data:`DEFAULT_SCHEME`, the implicit midpoint rule)
     kernel, precision : the contact search's leaf kernel and arithmetic (default hybrid in
         float64: BENCHMARKS.md; the state, forces and integration are float64 regardless)
     picard_tolerance : float — Picard converges when every body's force and torque
@@ -130,7 +135,7 @@ class Scene:
         self,
         gravity=(0.0, 0.0, -9.81),
         contact_model: ContactModel | None = None,
-        scheme: str = "implicit-surrogate",
+        scheme: str = DEFAULT_SCHEME,
         kernel: str = "hybrid",
         precision: str = DEFAULT_PRECISION,
         picard_tolerance: float = 0.01,

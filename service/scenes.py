@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from engine import SCHEMES, HertzSpring, LinearSpring, PaperSpring, Scene
+from engine import DEFAULT_SCHEME, SCHEMES, HertzSpring, LinearSpring, PaperSpring, Scene
 from engine.arguments import KERNELS
 
 from .errors import NotFound, Unprocessable
@@ -63,7 +63,7 @@ def parse_spec(body, max_bodies: int) -> dict:
         "gravity": array(body.get("gravity", [0.0, 0.0, -9.81]), "gravity", (3,)).tolist(),
         "epsilon": number(body.get("epsilon", 0.01), "epsilon", 1e-12),
         "dt": number(body.get("dt", 1e-3), "dt", 1e-12, MAX_DT),
-        "scheme": choice(body.get("scheme", "implicit-surrogate"), "scheme", SCHEMES),
+        "scheme": choice(body.get("scheme", DEFAULT_SCHEME), "scheme", SCHEMES),
         "kernel": choice(body.get("kernel", "hybrid"), "kernel", KERNELS),
         "max_halvings": number(body.get("max_halvings", 0), "max_halvings", 0, 8, integer=True),
         "substeps": flag(body.get("substeps", False), "substeps"),
