@@ -14,7 +14,10 @@
   linearly through it to the end of the step (positions, velocities and angular momenta
   2·mid − start; the orientation turned on by the same rotation). Backward Euler is
   first order and dissipative (a collision's restitution 0.62 at dt = 1e-3); the
-  midpoint rule is neither (BENCHMARKS.md).
+  midpoint rule is neither (BENCHMARKS.md). Its :class:`StepStats` (contacts, overlap,
+  elastic energy) describe the midpoint, the configuration it evaluated last. It adds no
+  numerical damping: with an undamped contact law a resting body keeps a small
+  oscillation (mm/s) and never sleeps; the law's damping brings it to rest.
 
 Picard relaxation (the paper's "weighted average between the currently computed forces
 and the forces of the previous step"): the applied forces move towards each iteration's
@@ -231,7 +234,7 @@ def _picard(scene, dt: float, search) -> dict:
             mismatch = (change[0][0] + change[1][0], change[0][1] + change[1][1])
             # body forces alone, every time: the applied forces are the computed ones exactly
             settled = forceless or _settled(scene, total, mismatch, stiffness[:, 2], radius)
-            recent = [*recent[-3:], total]
+            recent = [] if changed else [*recent[-5:], total]
             if not settled and iterations > SWITCH_AFTER:
                 applied_total = (
                     applied[0][0] + applied[1][0],
@@ -394,10 +397,12 @@ class _Bodies:
 
 
 def _bodies(scene) -> _Bodies:
-    """The scene's :class:`_Bodies`, rebuilt when bodies, masses, gravity or external
-    forces change (arrays compared by identity, gravity and forces by value)."""
+    """The scene's :class:`_Bodies`, rebuilt when the bodies, their masses or fixed flags,
+    gravity or the external forces change (arrays replaced, or edited in place)."""
     arrays = (scene.masses, scene.fixed, scene.tree_index)
-    values = (scene.gravity.tobytes(), scene.external_forces.tobytes())
+    values = tuple(
+        a.tobytes() for a in (scene.masses, scene.fixed, scene.gravity, scene.external_forces)
+    )
     cached = scene.__dict__.get("_body_terms")
     if (
         cached is not None
@@ -476,9 +481,10 @@ def _settled(scene, computed, mismatch, gross, radius) -> bool:
 
 def _switch(scene, recent, applied, gross, radius) -> bool:
     """Settled on a switch of the contact set: the last computed totals ``recent`` (force,
-    torque pairs) take two values A and B in turn — each repeats within the Picard
-    tolerance and they differ by more — and the applied totals lie within the tolerance of
-    the segment from A to B (one weight for the whole scene).
+    torque pairs, up to six) take two values A and B in turn — each at least twice, within
+    the Picard tolerance, and the sequence goes from one to the other and back (a single
+    change from A to B is a transition, not a cycle) — and the applied totals lie within
+    the tolerance of the segment from A to B (one weight for the whole scene).
 
     The merged contact forces jump where a contact point joins or leaves a cluster (the
     merge radius is a threshold), and a step that ends at such a configuration has no
@@ -492,7 +498,8 @@ def _switch(scene, recent, applied, gross, radius) -> bool:
     same = [_settled(scene, last, (r[0] - last[0], r[1] - last[1]), gross, radius) for r in recent]
     side_a = [r for r, s in zip(recent, same, strict=True) if s]
     side_b = [r for r, s in zip(recent, same, strict=True) if not s]
-    if len(side_a) < 2 or len(side_b) < 2:
+    changes = sum(x != y for x, y in zip(same[:-1], same[1:], strict=True))
+    if len(side_a) < 2 or len(side_b) < 2 or changes < 2:
         return False
     first_b = side_b[0]
     if not all(

@@ -450,7 +450,13 @@ class Scene:
         if hierarchy:
             # the scene's own arrays: the bank's checks are skipped (pairs are distinct by
             # construction), and the orientations are normalised as they would normalise them
-            unit = orientations / np.linalg.norm(orientations, axis=1)[:, None]
+            norms = np.linalg.norm(orientations, axis=1)
+            if not (np.abs(norms - 1.0) <= 1e-6).all():  # NaN fails too
+                bad = int(np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6))[0])
+                raise InvalidArgumentError(
+                    f"orientations[{bad}] must be a unit quaternion; its norm is {norms[bad]:.6g}"
+                )
+            unit = orientations / norms[:, None]
             a, b = pairs[:, 0], pairs[:, 1]
             queries = (
                 self.tree_index[a],
@@ -521,12 +527,13 @@ class Scene:
 
     @property
     def epsilon(self) -> np.ndarray:
-        """(n,) ε of each body (its tree's leaf ε; kept while the bodies are the same)."""
+        """(n,) ε of each body (its tree's leaf ε; a copy of the array kept while the bodies
+        are the same)."""
         cached = self.__dict__.get("_epsilon")
         if cached is None or cached[0] is not self.tree_index:
             epsilon = np.array([t.leaf_epsilon for t in self.trees])[self.tree_index]
             cached = self._epsilon = (self.tree_index, epsilon)
-        return cached[1]
+        return cached[1].copy()
 
     # ------------------------------------------------------------------ helpers
     def _tree(self, body, epsilon) -> tuple[SurrogateTree, Mesh]:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from clients import AsyncClient, Client, MeshInfo, ProblemError, SceneState
+from clients.calls import contacts_call
 from engine import Pose, build_tree, find_contacts_batch, shapes
 
 
@@ -63,6 +64,9 @@ def test_precision_is_the_services_default_unless_asked(client):
     single = client.contacts(pairs, precision="float32")[0]
     double = client.contacts(pairs)[0]
     assert not np.array_equal(single.overlaps, double.overlaps)  # the default is float64
+    # unasked, the client leaves the choice to the service: no precision on the wire
+    assert "precision" not in contacts_call(pairs, "hybrid", True, None).payload
+    assert contacts_call(pairs, "hybrid", True, "float32").payload["precision"] == "float32"
 
 
 @pytest.mark.parametrize("wire", ["msgpack", "json"])

@@ -236,3 +236,30 @@ def test_a_randomly_oriented_grid_touches_every_face_neighbour():
     assert (found.overlaps <= 0.02).all()
     with pytest.raises(InvalidArgumentError, match="orientations"):
         scenarios.sphere_grid(shape=(1, 1, 2), orientations="tilted")
+
+
+@pytest.mark.parametrize("scheme", ["explicit", "implicit-surrogate", "implicit-midpoint"])
+def test_masses_and_fixed_flags_edited_in_place_take_effect(scheme):
+    """The per-body terms a step caches follow in-place edits of ``masses`` and ``fixed``."""
+    scene = Scene(gravity=(0.0, 0.0, 0.0), scheme=scheme)
+    for x in (0.0, 5.0):
+        scene.add_body(shapes.box(), position=(x, 0.0, 0.0))
+    for body in (0, 1):
+        scene.set_external_force(body, (1.0, 0.0, 0.0))
+    scene.step(1e-3)
+    scene.masses[1] *= 4.0  # a quarter of the acceleration from now on
+    scene.fixed[0] = True  # body 0 stops where it is
+    before = scene.state
+    for _ in range(10):
+        scene.step(1e-3)
+    np.testing.assert_array_equal(scene.positions[0], before.positions[0])
+    gained = scene.velocities[1, 0] - before.velocities[1, 0]
+    assert gained == pytest.approx(10 * 1e-3 * 1.0 / scene.masses[1], rel=1e-9)
+
+
+def test_contacts_rejects_orientations_that_are_not_unit_quaternions():
+    scene = scenarios.particle_particle(triangles=80)
+    orientations = scene.orientations.copy()
+    orientations[1] = 0.0
+    with pytest.raises(InvalidArgumentError, match=r"orientations\[1\]"):
+        scene.contacts(scene.positions, orientations)

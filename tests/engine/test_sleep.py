@@ -68,3 +68,16 @@ def test_bad_sleep_settings():
         Sleep(steps=0)
     with pytest.raises(InvalidArgumentError):
         Scene(sleep="yes")
+
+
+def test_a_damped_box_comes_to_rest_and_sleeps_under_the_default_scheme():
+    """The default scheme (implicit midpoint) adds no numerical damping: the contact law's
+    damping brings a dropped box to rest, and then it sleeps."""
+    from engine import DEFAULT_SCHEME
+
+    scene = Scene(sleep=True, contact_model=PaperSpring(damping=0.3))
+    assert scene.scheme == DEFAULT_SCHEME == "implicit-midpoint"
+    scene.add_plane(size=4.0, divisions=2)
+    scene.add_body(shapes.box(), position=(0.0, 0.0, 0.6))
+    slept = next((k for k in range(1500) if scene.step(1e-3).sleeping), None)
+    assert slept is not None and np.isfinite(scene.positions).all()

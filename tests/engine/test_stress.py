@@ -248,7 +248,9 @@ def test_picard_settles_on_a_contact_set_switch_and_only_there():
     gross, radius = np.full(len(scene), 9.81), np.ones(len(scene))
     middle = tuple(0.3 * x + 0.7 * y for x, y in zip(a, b, strict=True))
     assert _switch(scene, [a, b, a, b], middle, gross, radius)
-    assert _switch(scene, [a, a, b, b], a, gross, radius)  # an end of the segment
+    assert _switch(scene, [b, b, a, a, b, b], a, gross, radius)  # period 4, an end
+    assert not _switch(scene, [a, a, b, b], middle, gross, radius)  # one change: a transition
+    assert not _switch(scene, [a, a, a, a, b, b], middle, gross, radius)
     assert not _switch(scene, [a, b, a], middle, gross, radius)  # too few
     off = (middle[0] + 3.0, middle[1])
     assert not _switch(scene, [a, b, a, b], off, gross, radius)
