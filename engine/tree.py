@@ -34,6 +34,7 @@ from __future__ import annotations
 import io
 import os
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -200,6 +201,8 @@ def build_tree(
     branching: int = 8,
     seed: int = 0,
     fit: str | FitParameters = DEFAULT_FIT,
+    *,
+    progress: Callable[[int, int], None] | None = None,
 ) -> SurrogateTree:
     """Build the surrogate tree of ``mesh``.
 
@@ -213,6 +216,8 @@ def build_tree(
         :data:`engine.surrogates.FITS` ("epsilon", fitted, the default; "paper", the
         paper's literal functional; "initial", the enclosing triangle unfitted) or
         parameters of the functional
+    progress : callable, optional — ``progress(levels_done, nodes_done)`` after each
+        finished level, on the building thread (levels_done counts the root's as 1)
 
     Returns
     -------
@@ -243,9 +248,13 @@ def build_tree(
     all_faces = np.arange(len(tris))
     root_tri, root_eps = _surrogate(tris[all_faces], epsilon, params)
     queue = deque([(add(root_tri, root_eps, 0, -1, -1), all_faces)])
+    reported = 0
     while queue:
         node, faces = queue.popleft()
         level = nodes["level"][node] + 1
+        if progress is not None and level > reported:
+            reported = level
+            progress(level, len(nodes["face"]))  # levels 0 … level − 1 are all built
         nodes["first_child"][node] = len(nodes["face"])
         if len(faces) <= branching:
             for f in faces:
@@ -263,6 +272,8 @@ def build_tree(
         "epsilon": np.array(nodes["epsilon"], dtype=np.float64),
         **{k: np.array(nodes[k], dtype=np.int32) for k in _ARRAYS[2:]},
     }
+    if progress is not None:
+        progress(reported + 1, len(nodes["face"]))
     verts = tris.reshape(-1, 3)
     radius = float(np.linalg.norm(verts - verts.mean(axis=0), axis=1).max())
     return SurrogateTree(arrays, epsilon, branching, seed, radius)
