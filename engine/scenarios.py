@@ -15,11 +15,15 @@ import trimesh
 
 from .errors import InvalidArgumentError
 from .forces import ContactModel, PaperSpring
+from .halos import size_epsilon
 from .mesh import Mesh
 from .scene import Scene
 from .shapes import PAPER_UV_SPHERES, icosphere, paper_sphere
 
 __all__ = ["particle_on_plane", "particle_particle", "scale_difference", "sphere_grid", "sphere"]
+
+PAPER_RELATIVE_EPSILON = 0.01
+"""The paper's ε: 1 % of a sphere's diameter (given explicitly: not the scene's default)."""
 
 
 def sphere(triangles: int = 1224, diameter: float = 1.0) -> Mesh:
@@ -48,8 +52,9 @@ def particle_particle(
     They bump and separate within about (gap + 0.04)/speed + 0.02 s of simulated time."""
     mesh = sphere(triangles)
     scene = Scene(gravity=(0.0, 0.0, 0.0), scheme=scheme, contact_model=contact_model)
-    scene.add_body(mesh, position=(-(1 + gap) / 2, 0.0, 0.0), velocity=(speed, 0.0, 0.0))
-    scene.add_body(mesh, position=((1 + gap) / 2, offset, 0.0), velocity=(-speed, 0.0, 0.0))
+    eps = size_epsilon(mesh, PAPER_RELATIVE_EPSILON)
+    scene.add_body(mesh, (-(1 + gap) / 2, 0.0, 0.0), velocity=(speed, 0.0, 0.0), epsilon=eps)
+    scene.add_body(mesh, ((1 + gap) / 2, offset, 0.0), velocity=(-speed, 0.0, 0.0), epsilon=eps)
     return scene
 
 
@@ -70,7 +75,9 @@ def particle_on_plane(
     scene = Scene(scheme=scheme, contact_model=model)
     scene.add_plane(point=(0.0, 0.0, 0.0), normal=normal, size=8.0, divisions=16, epsilon=0.01)
     # 2 uphill of the plane's centre, surfaces ``drop`` apart plus both halos
-    scene.add_body(sphere(triangles), position=normal * (0.5 + 0.02 + drop) - 2.0 * downhill)
+    ball = sphere(triangles)
+    position = normal * (0.5 + 0.02 + drop) - 2.0 * downhill
+    scene.add_body(ball, position, epsilon=size_epsilon(ball, PAPER_RELATIVE_EPSILON))
     return scene
 
 
@@ -90,9 +97,10 @@ def scale_difference(
     large = sphere(triangles, diameter=scale)
     scene = Scene(gravity=(0.0, 0.0, 0.0), scheme=scheme, contact_model=contact_model)
     reach = 0.01 * (1.0 + scale)  # ε of the two bodies
-    scene.add_body(small, position=(-0.5, 0.0, 0.0), velocity=(speed, 0.0, 0.0))
+    eps_small, eps_large = (size_epsilon(m, PAPER_RELATIVE_EPSILON) for m in (small, large))
+    scene.add_body(small, (-0.5, 0.0, 0.0), velocity=(speed, 0.0, 0.0), epsilon=eps_small)
     centre = scale / 2 + reach + 0.05
-    scene.add_body(large, position=(centre, 0.0, 0.0), velocity=(-speed, 0.0, 0.0))
+    scene.add_body(large, (centre, 0.0, 0.0), velocity=(-speed, 0.0, 0.0), epsilon=eps_large)
     return scene
 
 
@@ -146,7 +154,8 @@ def sphere_grid(
     if orientations == "random":
         quaternions = np.random.default_rng(seed).normal(size=(len(positions), 4))
         quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
-    scene.add_bodies(mesh, positions, orientations=quaternions)
+    eps = size_epsilon(mesh, PAPER_RELATIVE_EPSILON)
+    scene.add_bodies(mesh, positions, orientations=quaternions, epsilon=eps)
     return scene
 
 

@@ -4,9 +4,11 @@ A :class:`Scene` owns float64 state arrays — centre-of-mass ``positions (n, 3)
 quaternions ``orientations (n, 4)`` (w, x, y, z), world-frame ``velocities`` and
 ``angular_velocities (n, 3)`` — plus per-body mass, body-frame inertia about the centre
 of mass, a fixed flag and an external force. Bodies share surrogate trees (instancing):
-a mesh added twice with the same ε is built once, and a body stores only the index of
-its tree and the offset of its centre of mass in the mesh frame. Planes and walls are
-fixed bodies (infinite mass); open meshes may only be fixed.
+a mesh is built once and its tree shifted to every other ε it is given
+(:mod:`engine.halos`), and a body stores only the index of its tree and the offset of its
+centre of mass in the mesh frame. Planes and walls are fixed bodies (infinite mass). Mass
+properties: exact for closed meshes, from the convex hull of open ones, or given
+(:mod:`engine.inertia`); ε defaults: :mod:`engine.halos`.
 
 Contacts of a configuration: bounding spheres of the trees' roots go through the broad
 phase (never a fixed–fixed pair); the candidate pairs go through the multiresolution
@@ -33,8 +35,17 @@ from .batch import PairCache, TreeBank
 from .broadphase import overlapping_pairs
 from .contacts import find_contacts, spheres
 from .distance import DEFAULT_PRECISION
-from .errors import InvalidArgumentError, InvalidMeshError
+from .errors import InvalidArgumentError
 from .forces import ContactModel, PaperSpring
+from .halos import (
+    AUTO,
+    DEFAULT_RELATIVE_EPSILON,
+    check_epsilon,
+    fixed_epsilon,
+    shifted_tree,
+    size_epsilon,
+)
+from .inertia import body_mass, fixed_center, tree_mesh
 from .kernels import batch as kb
 from .kernels import dynamics as kd
 from .mesh import Mesh
@@ -43,7 +54,7 @@ from .shapes import plane
 from .sleep import Sleep
 from .tree import SurrogateTree, build_tree
 
-__all__ = ["SCHEMES", "Scene", "SceneState"]
+__all__ = ["DEFAULT_RELATIVE_EPSILON", "SCHEMES", "Scene", "SceneState"]
 
 SCHEMES = ("explicit", "implicit", "implicit-surrogate", "implicit-midpoint", "multiscale")
 DEFAULT_SCHEME = "implicit-midpoint"
@@ -60,10 +71,6 @@ SEARCH_COUNTERS = (
     "listed",
 )
 """The search counters summed over a configuration's body pairs (:class:`Contacts`)."""
-DEFAULT_RELATIVE_EPSILON = 0.01
-"""A body's ε when not given: this fraction of its mesh's diameter (DESIGN §5), taken as
-twice the largest distance of a vertex from the vertices' mean (rotation invariant; 1 for
-a unit-diameter sphere)."""
 
 
 @dataclass(frozen=True)
@@ -173,8 +180,11 @@ class Scene:
             raise InvalidArgumentError("sleep must be a bool or an engine.sleep.Sleep")
         self.sleep = sleep or None
         self.time = 0.0
-        self.trees: list[SurrogateTree] = []
-        self._tree_keys: dict[tuple, int] = {}
+        self.trees: list[SurrogateTree] = []  # the trees the bodies use (tree_index)
+        self._slots: dict[int, int] = {}  # id(tree) -> its index in self.trees
+        self._bases: dict[tuple, SurrogateTree] = {}  # each mesh's or tree's unshifted tree
+        self._shifts: dict[tuple, SurrogateTree] = {}  # (id(base), ε) -> shifted tree
+        self._ruled: list[tuple[np.ndarray, SurrogateTree, float]] = []  # fixed, ε by rule
         self._bank: TreeBank | None = None
         self._multiscale = None
         self.pair_cache = PairCache(skin)
@@ -191,6 +201,7 @@ class Scene:
         self.tree_index = np.zeros(n, np.int64)
         self.fixed = np.zeros(n, bool)
         self.external_forces = np.zeros((n, 3))
+        self.mass_source = np.zeros(n, "<U11")  # engine.inertia.MASS_SOURCES
 
     # ------------------------------------------------------------------ building
     def __len__(self) -> int:
@@ -206,21 +217,32 @@ class Scene:
         density: float | None = None,
         mass: float | None = None,
         fixed: bool = False,
-        epsilon: float | None = None,
+        epsilon: float | str | None = None,
+        inertia=None,
+        center_of_mass=None,
     ) -> int:
         """Add a body; returns its index.
 
         Parameters
         ----------
-        body : Mesh or SurrogateTree — a mesh gets a tree with ε = ``epsilon`` (default
-            1 % of its diameter, :data:`DEFAULT_RELATIVE_EPSILON`), shared with every body
-            of the same mesh and ε; a tree keeps its own leaf ε
+        body : Mesh or SurrogateTree — one tree per mesh (or tree) is kept and shifted to
+            every ε its bodies are given (:func:`engine.halos.shifted_tree`)
         position : (3,) — world position of the centre of mass (of the mesh-frame origin
             for a fixed open mesh)
         orientation : (4,) — unit quaternion (w, x, y, z)
         velocity, angular_velocity : (3,) — world frame (ignored for fixed bodies)
-        density, mass : float — at most one; default density 1 (closed meshes only)
+        density, mass : float — at most one; default density 1 (ignored for fixed bodies)
         fixed : bool — immovable (infinite mass)
+        epsilon : float, "auto" or None — the body's ε. None: a mesh gets the default rule
+            (:mod:`engine.halos`: a free body 0.4 % of its diameter; a fixed body a tenth
+            of the smallest free body's ε, at most its own size default, resolved again
+            whenever bodies are added), a tree keeps its own leaf ε; "auto": the default
+            rule for a tree too; a number: that ε (a tree is shifted to it)
+        inertia : (3, 3) or (3,) array_like, optional — inertia tensor about the centre of
+            mass (mesh axes) or principal moments; needs ``mass``; a free body's mass
+            properties otherwise come from its closed mesh or, for an open mesh, its convex
+            hull (:mod:`engine.inertia`; the source is in :attr:`mass_source`)
+        center_of_mass : (3,) array_like, optional — mesh frame; needs ``mass``
         """
         pose = Pose(position, orientation)  # validates both
         rows = (
@@ -229,7 +251,8 @@ class Scene:
             check_vector(velocity, 3, "velocity")[None],
             check_vector(angular_velocity, 3, "angular_velocity")[None],
         )
-        return self._add(body, rows, density, mass, fixed, epsilon)[0]
+        mass_args = (density, mass, inertia, center_of_mass)
+        return self._add(body, rows, mass_args, fixed, epsilon)[0]
 
     def add_bodies(
         self,
@@ -241,7 +264,9 @@ class Scene:
         density: float | None = None,
         mass: float | None = None,
         fixed: bool = False,
-        epsilon: float | None = None,
+        epsilon: float | str | None = None,
+        inertia=None,
+        center_of_mass=None,
     ) -> np.ndarray:
         """Add ``k`` bodies of one shape at once (``positions (k, 3)``; orientations
         ``(k, 4)``, velocities and angular velocities ``(k, 3)`` default to identity and
@@ -265,31 +290,30 @@ class Scene:
             if angular_velocities is None
             else check_rows(angular_velocities, k, 3, "angular_velocities"),
         )
-        return self._add(body, rows, density, mass, fixed, epsilon)
+        mass_args = (density, mass, inertia, center_of_mass)
+        return self._add(body, rows, mass_args, fixed, epsilon)
 
-    def _add(self, body, rows, density, mass, fixed, epsilon) -> np.ndarray:
+    def _add(self, body, rows, mass_args, fixed, epsilon) -> np.ndarray:
         """Append bodies of one shape with state ``rows``; returns their indices."""
-        if density is not None and mass is not None:
-            raise InvalidArgumentError("give density or mass, not both")
-        tree, mesh = self._tree(body, epsilon)
+        fixed = bool(fixed)
+        epsilon = check_epsilon(epsilon)
+        base, mesh = self._base(body, epsilon)
         positions, orientations, velocities, angular_velocities = rows
         k = len(positions)
         if fixed:
-            try:
-                center = mesh.center_mass
-            except InvalidMeshError:
-                center = np.zeros(3)  # an open mesh: its own origin
+            source, center = "fixed", fixed_center(mesh)
             m, inertia, inverse = math.inf, np.eye(3), np.zeros((3, 3))
             velocities, angular_velocities = np.zeros((k, 3)), np.zeros((k, 3))
         else:
-            try:
-                unit = mesh.mass_properties(1.0)
-            except InvalidMeshError as exc:
-                raise InvalidArgumentError(f"a free body needs a closed mesh: {exc}") from None
-            scale = _density(density, mass, unit.volume)
-            m, center = unit.mass * scale, unit.center_mass
-            inertia = unit.inertia * scale
+            props = body_mass(mesh, *mass_args)
+            source, m, center, inertia = props.source, props.mass, props.center, props.inertia
             inverse = np.linalg.inv(inertia)
+        if epsilon is None and isinstance(body, SurrogateTree):
+            eps, rule = base.leaf_epsilon, False
+        elif epsilon is None or epsilon == AUTO:
+            eps, rule = size_epsilon(mesh), fixed  # a fixed body's is resolved below
+        else:
+            eps, rule = epsilon, False
         first = len(self)
         self._wake()
         self.pair_cache.clear()  # its keys number the pairs by the body count
@@ -303,10 +327,14 @@ class Scene:
         self.inverse_inertia = np.concatenate([self.inverse_inertia, np.tile(inverse, (k, 1, 1))])
         self.centers = np.concatenate([self.centers, np.tile(center, (k, 1))])
         self.tree_index = np.concatenate(
-            [self.tree_index, np.full(k, self.trees.index(tree), np.int64)]
+            [self.tree_index, np.full(k, self._slot(self._shifted(base, eps)), np.int64)]
         )
-        self.fixed = np.concatenate([self.fixed, np.full(k, bool(fixed))])
+        self.fixed = np.concatenate([self.fixed, np.full(k, fixed)])
         self.external_forces = np.concatenate([self.external_forces, np.zeros((k, 3))])
+        self.mass_source = np.concatenate([self.mass_source, np.full(k, source)])
+        if rule:
+            self._ruled.append((np.arange(first, first + k), base, eps))
+        self._resolve()
         return np.arange(first, first + k)
 
     def add_plane(
@@ -315,10 +343,11 @@ class Scene:
         normal=(0.0, 0.0, 1.0),
         size: float = 10.0,
         divisions: int = 16,
-        epsilon: float = 0.01,
+        epsilon: float | None = None,
     ) -> int:
         """Add a fixed square plane of side ``size`` centred at ``point``, facing ``normal``
-        (2·divisions² triangles, ε = ``epsilon``); returns its index."""
+        (2·divisions² triangles); returns its index. ``epsilon`` None: the fixed bodies'
+        default rule (:mod:`engine.halos`: a tenth of the smallest free body's ε)."""
         n = check_vector(normal, 3, "normal")
         length = float(np.linalg.norm(n))
         if length == 0:
@@ -536,33 +565,64 @@ class Scene:
         return cached[1].copy()
 
     # ------------------------------------------------------------------ helpers
-    def _tree(self, body, epsilon) -> tuple[SurrogateTree, Mesh]:
+    def _base(self, body, epsilon) -> tuple[SurrogateTree, Mesh]:
+        """The unshifted tree of ``body`` and its mesh: a tree itself; a mesh's tree built
+        on its first use (at ``epsilon`` when a number, else at its size default)."""
         if isinstance(body, SurrogateTree):
-            if epsilon is not None and epsilon != body.leaf_epsilon:
-                raise InvalidArgumentError("a SurrogateTree keeps its own ε; omit epsilon")
             key = ("tree", id(body))
-            if key not in self._tree_keys:
-                self._tree_keys[key] = len(self.trees)
-                self.trees.append(body)
-                self._bank = None
-            return body, _tree_mesh(body)
+            self._bases.setdefault(key, body)
+            return body, tree_mesh(body)
         if not isinstance(body, Mesh):
             raise InvalidArgumentError("body must be an engine.Mesh or an engine.SurrogateTree")
-        if epsilon is None:
-            spread = body.vertices - body.vertices.mean(axis=0)
-            eps = DEFAULT_RELATIVE_EPSILON * 2 * float(np.sqrt((spread**2).sum(1).max()))
-        else:
-            eps = float(epsilon)
-            if not (math.isfinite(eps) and eps > 0):
-                raise InvalidArgumentError(f"epsilon must be finite and > 0, got {epsilon!r}")
-        key = ("mesh", id(body), eps)
-        if key not in self._tree_keys:
-            self._tree_keys[key] = len(self.trees)
+        key = ("mesh", id(body))
+        if key not in self._bases:
+            eps = epsilon if isinstance(epsilon, float) else size_epsilon(body)
             tree = build_tree(body, eps)
             tree.__dict__["_mesh"] = body
+            self._bases[key] = tree
+        return self._bases[key], body
+
+    def _shifted(self, base: SurrogateTree, epsilon: float) -> SurrogateTree:
+        """``base`` shifted to leaf ε ``epsilon`` (one tree per base and ε in a scene)."""
+        key = (id(base), float(epsilon))
+        if key not in self._shifts:
+            self._shifts[key] = shifted_tree(base, epsilon)
+        return self._shifts[key]
+
+    def _slot(self, tree: SurrogateTree) -> int:
+        """The index of ``tree`` in :attr:`trees` (appended when new)."""
+        if id(tree) not in self._slots:
+            self._slots[id(tree)] = len(self.trees)
             self.trees.append(tree)
             self._bank = None
-        return self.trees[self._tree_keys[key]], body
+        return self._slots[id(tree)]
+
+    def _resolve(self) -> None:
+        """Give every fixed body whose ε follows the default rule the rule's ε for the
+        bodies now in the scene (:func:`engine.halos.fixed_epsilon`), and drop the trees
+        no body uses any more."""
+        if not self._ruled:
+            return
+        free = self.epsilon[~self.fixed]
+        index = self.tree_index.copy()
+        for bodies, base, size in self._ruled:
+            index[bodies] = self._slot(self._shifted(base, fixed_epsilon(size, free)))
+        if np.array_equal(index, self.tree_index):
+            return
+        self.tree_index = index
+        used = np.unique(index)
+        if len(used) < len(self.trees):
+            remap = np.full(len(self.trees), -1, np.int64)
+            remap[used] = np.arange(len(used))
+            self.trees = [self.trees[t] for t in used]
+            self.tree_index = remap[index]
+            self._slots = {id(t): i for i, t in enumerate(self.trees)}
+            bases = {id(t) for t in self._bases.values()}
+            self._shifts = {
+                k: t for k, t in self._shifts.items() if id(t) in self._slots or id(t) in bases
+            }
+        self._bank = None
+        self._multiscale = None  # its pairs' cached arguments name the replaced trees
 
     def _body(self, body: int) -> int:
         if isinstance(body, bool) or not isinstance(body, int | np.integer):
@@ -570,29 +630,6 @@ class Scene:
         if not 0 <= body < len(self):
             raise InvalidArgumentError(f"no body {body} (the scene has {len(self)})")
         return int(body)
-
-
-def _tree_mesh(tree: SurrogateTree) -> Mesh:
-    """The mesh of a tree's leaves (for mass properties), cached on the tree."""
-    if "_mesh" not in tree.__dict__:
-        leaves = tree.face >= 0
-        order = np.argsort(tree.face[leaves])
-        tris = tree.triangles[leaves][order].reshape(-1, 3)
-        vertices, faces = np.unique(tris, axis=0, return_inverse=True)
-        tree.__dict__["_mesh"] = Mesh(vertices, faces.reshape(-1, 3))
-    return tree.__dict__["_mesh"]
-
-
-def _density(density, mass, volume: float) -> float:
-    if mass is not None:
-        mass = float(mass)
-        if not (math.isfinite(mass) and mass > 0):
-            raise InvalidArgumentError(f"mass must be finite and > 0, got {mass}")
-        return mass / volume
-    density = 1.0 if density is None else float(density)
-    if not (math.isfinite(density) and density > 0):
-        raise InvalidArgumentError(f"density must be finite and > 0, got {density}")
-    return density
 
 
 def _scheme(scheme: str) -> str:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from engine import InvalidArgumentError, Scene, build_tree, scenarios, shapes
+from engine.halos import DEFAULT_RELATIVE_EPSILON
 
 SPHERE = shapes.icosphere(1, radius=0.5)
 
@@ -14,15 +15,21 @@ def test_bodies_of_one_mesh_share_one_tree():
     scene = Scene()
     scene.add_body(SPHERE, position=(0, 0, 0))
     scene.add_bodies(SPHERE, [[2, 0, 0], [4, 0, 0]], velocities=[[1, 0, 0], [0, 1, 0]])
-    scene.add_body(SPHERE, position=(6, 0, 0), epsilon=0.02)  # another ε: another tree
+    scene.add_body(SPHERE, position=(6, 0, 0), epsilon=0.02)  # another ε: the tree shifted
     assert len(scene) == 4 and len(scene.trees) == 2
     np.testing.assert_array_equal(scene.tree_index, [0, 0, 0, 1])
-    np.testing.assert_allclose(scene.epsilon, [0.01, 0.01, 0.01, 0.02], rtol=1e-12)
+    spread = np.linalg.norm(SPHERE.vertices - SPHERE.vertices.mean(axis=0), axis=1).max()
+    default = DEFAULT_RELATIVE_EPSILON * 2 * spread  # the size default of a free body
+    np.testing.assert_allclose(scene.epsilon, [default] * 3 + [0.02], rtol=1e-12)
+    assert scene.trees[1].triangles is scene.trees[0].triangles  # built once
     np.testing.assert_allclose(scene.masses, SPHERE.volume)
     np.testing.assert_array_equal(scene.velocities[1:3], [[1, 0, 0], [0, 1, 0]])
     tree = build_tree(SPHERE, 0.03)
     index = scene.add_body(tree, position=(8, 0, 0), mass=2.0)
     assert scene.masses[index] == pytest.approx(2.0) and scene.epsilon[index] == 0.03
+    again = scene.add_body(tree, position=(10, 0, 0), epsilon=0.05)  # a tree, shifted
+    assert scene.epsilon[again] == 0.05 and scene.trees[-1].triangles is tree.triangles
+    assert len(scene.trees) == 4 and scene.mass_source.tolist() == ["mesh"] * 6
 
 
 def test_add_bodies_equals_add_body_one_by_one():
@@ -60,7 +67,9 @@ def test_fixed_bodies_and_planes_never_move():
         (lambda s: s.add_body(SPHERE, position=(0, np.nan, 0)), "finite"),
         (lambda s: s.add_body(SPHERE, density=1, mass=1), "density or mass"),
         (lambda s: s.add_body(SPHERE, mass=-1), "mass"),
-        (lambda s: s.add_body(shapes.plane(), fixed=False), "closed mesh"),
+        (lambda s: s.add_body(shapes.plane(), fixed=False), "convex hull is flat"),
+        (lambda s: s.add_body(SPHERE, epsilon=-1.0), "epsilon must be finite and > 0"),
+        (lambda s: s.add_body(SPHERE, epsilon="thin"), "epsilon must be a number or 'auto'"),
         (lambda s: s.add_body("sphere"), "Mesh or an engine.SurrogateTree"),
         (lambda s: s.add_bodies(SPHERE, [[0, 0, 0]], orientations=[[2, 0, 0, 0]]), "unit"),
         (lambda s: s.step(0.0), "dt"),
@@ -75,13 +84,13 @@ def test_bad_input_is_rejected_and_changes_nothing(call, message):
     before = scene.state
     with pytest.raises(InvalidArgumentError, match=message):
         call(scene)
-    assert len(scene) == 1
+    assert len(scene) == 1 and len(scene.trees) == 1
     np.testing.assert_array_equal(scene.state.positions, before.positions)
 
 
 def test_set_state_validates_everything_before_changing_anything():
     scene = Scene(gravity=(0, 0, 0))
-    scene.add_bodies(SPHERE, [[0, 0, 0], [3, 0, 0]])
+    scene.add_bodies(SPHERE, [[0, 0, 0], [3, 0, 0]], epsilon=0.05)  # 1 m/s: 0.01 a step
     with pytest.raises(InvalidArgumentError):
         scene.set_state(positions=[[1, 1, 1], [2, 2, 2]], orientations=[[1, 0, 0, 0], [0, 0, 0, 0]])
     np.testing.assert_array_equal(scene.positions, [[0, 0, 0], [3, 0, 0]])

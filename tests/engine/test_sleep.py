@@ -14,12 +14,13 @@ def _row_of_boxes(sleep) -> Scene:
     """Four unit boxes resting on a plane (on the edge of their halos), and a ball falling
     onto the first one from 0.6 above it."""
     scene = Scene(contact_model=PaperSpring(damping=0.5, friction=0.5), sleep=sleep)
-    scene.add_plane(size=12.0, divisions=4)
+    scene.add_plane(size=12.0, divisions=4, epsilon=0.01)
     box = shapes.box()
     low = 0.5 + 0.998 * (0.01 + 0.01 * box.diameter)
     for x in (-4.5, -1.5, 1.5, 4.5):
-        scene.add_body(box, position=(x, 0.0, low))
-    scene.add_body(shapes.icosphere(2, radius=0.3), position=(-4.5, 0.0, 1.0 + 0.6 + 0.3))
+        scene.add_body(box, position=(x, 0.0, low), epsilon=0.01 * box.diameter)
+    ball = (-4.5, 0.0, 1.0 + 0.6 + 0.3)
+    scene.add_body(shapes.icosphere(2, radius=0.3), position=ball, epsilon=0.006)
     return scene
 
 

@@ -147,8 +147,9 @@ def test_random_poses_of_a_torus_and_a_noisy_sphere(seed):
 def _thrown_at_a_plane(speed: float, substeps: bool) -> Scene:
     """A ball 0.03 above a fixed plane (zero thickness), thrown at it, no gravity."""
     scene = Scene(gravity=(0.0, 0.0, 0.0), scheme="explicit", substeps=substeps)
-    scene.add_plane(size=4.0, divisions=4)
-    scene.add_body(_ball(), position=(0.0, 0.0, 0.5 + 0.03), velocity=(0.0, 0.0, -speed))
+    scene.add_plane(size=4.0, divisions=4, epsilon=0.01)
+    start = (0.0, 0.0, 0.5 + 0.03)
+    scene.add_body(_ball(), position=start, velocity=(0.0, 0.0, -speed), epsilon=0.01)
     return scene
 
 
@@ -181,12 +182,12 @@ def _stack(scheme: str) -> Scene:
     """Two unit boxes stacked on a fixed plane, each resting on the edge of its halos (where
     the springs carry the weight), under gravity."""
     scene = Scene(scheme=scheme, contact_model=PaperSpring(damping=0.5, friction=0.5))
-    scene.add_plane(size=6.0, divisions=2)
+    scene.add_plane(size=6.0, divisions=2, epsilon=0.01)
     box = shapes.box()
-    eps_box = 0.01 * box.diameter  # the scene's default ε for a mesh
+    eps_box = 0.01 * box.diameter  # ε = 1 % of the diameter
     low = 0.5 + 0.998 * (0.01 + eps_box)
-    scene.add_body(box, position=(0.0, 0.0, low))
-    scene.add_body(box, position=(0.1, 0.05, low + 1.0 + 0.998 * 2 * eps_box))
+    scene.add_body(box, position=(0.0, 0.0, low), epsilon=eps_box)
+    scene.add_body(box, position=(0.1, 0.05, low + 1.0 + 0.998 * 2 * eps_box), epsilon=eps_box)
     return scene
 
 

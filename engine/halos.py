@@ -1,0 +1,124 @@
+"""The halo ε of bodies in a scene: defaults, and overrides by shifting a tree's node ε.
+
+**Shifting.** Every node of a surrogate tree has ε = (largest distance from a covered
+vertex to its surrogate triangle) + leaf ε, and the triangles do not depend on the leaf ε.
+So a tree for another leaf ε′ is the same arrays with ``ε_node′ = ε_node − ε + ε′``
+(leaves: exactly ε′): exactly as conservative as a tree built with ε′, and a contact query
+on it finds the same leaf pairs with the same overlaps (:func:`shifted_tree`; one array
+copy instead of a build). A scene builds each mesh's tree once and shifts it for every
+other ε it is given.
+
+**Defaults** (a body added without ε, or with ``epsilon="auto"``):
+
+* a free body: :data:`DEFAULT_RELATIVE_EPSILON` (0.4 %) of its diameter, taken as twice
+  the largest distance of a vertex from the vertices' mean (:func:`size_epsilon`);
+* a fixed body (a floor, a wall, a plane): :data:`FIXED_EPSILON_FRACTION` (0.1) of the
+  smallest free body's ε in the scene, never more than its own size default — resolved
+  again whenever bodies are added, so a floor added before the balls follows them
+  (:func:`fixed_epsilon`).
+
+**Why these numbers.** With the paper's law (``PaperSpring``: F = K_s·δ/(ε_a + ε_b)·√m
+against a fixed body) a body of mass m rests where its overlap fraction is
+φ = δ/(ε_a + ε_b) = √m·g/K_s, i.e. with its surface (ε_a + ε_b)·(1 − φ) above the surface
+it rests on: never below it (φ < 1), and for a radius-0.5 ball of density 1 (m = 0.52,
+φ = 0.0071 at K_s = 1,000) a gap of 0.993·(ε_ball + ε_floor). The gap stays within 1 % of
+the radius (0.005) only if ε_ball + ε_floor ≤ 0.00504: the ball's own default must be below
+0.5 % of its diameter, whatever the floor's. 0.4 % and a tenth of it for the floor give
+0.0044 and a gap of 0.00437 = 0.87 % of the radius (measured the same to 6 digits). The old
+defaults (1 % of each body's diameter) left that ball 0.149 above a 14 m floor, 0.0199 above
+a plane of ε = 0.01.
+
+The price of thin halos: the paper's spring stores at most ½·K_s·√m·(ε_a + ε_b), so a body
+dropped from rest higher than about (ε_a + ε_b)/(2φ) above the surface (0.31 m for that
+ball) is not stopped within the halos and its triangles cross the floor's. Give larger ε,
+or a stiffer law, to drop things from higher.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import InvalidArgumentError
+from .mesh import Mesh
+from .tree import _ARRAYS, SurrogateTree
+
+__all__ = [
+    "AUTO",
+    "DEFAULT_RELATIVE_EPSILON",
+    "FIXED_EPSILON_FRACTION",
+    "check_epsilon",
+    "fixed_epsilon",
+    "shifted_tree",
+    "size_epsilon",
+]
+
+DEFAULT_RELATIVE_EPSILON = 0.004
+"""A body's ε when not given: this fraction of its diameter (twice the largest distance of a
+vertex from the vertices' mean; rotation invariant, 1 for a unit-diameter sphere). A fixed
+body takes the smaller of this and :data:`FIXED_EPSILON_FRACTION` of the free bodies' ε."""
+FIXED_EPSILON_FRACTION = 0.1
+"""A fixed body's default ε: this fraction of the smallest free body's ε in its scene."""
+AUTO = "auto"
+"""``epsilon=AUTO``: the default rule, also for a tree (which otherwise keeps its own ε)."""
+_GEOMETRY_CACHES = (
+    "_mesh",
+    "_master",
+    "_node_sets",
+    "_face_nodes",
+    "_face_normals",
+    "_faces",
+    "_extent",
+)
+"""Caches on a tree that depend on its triangles only, shared by its shifted copies."""
+
+
+def size_epsilon(mesh: Mesh, relative: float = DEFAULT_RELATIVE_EPSILON) -> float:
+    """``relative`` × the diameter of ``mesh`` (float), the diameter taken as twice the
+    largest distance of a vertex from the vertices' mean."""
+    spread = mesh.vertices - mesh.vertices.mean(axis=0)
+    return relative * 2 * float(np.sqrt((spread**2).sum(1).max()))
+
+
+def fixed_epsilon(size: float, free_epsilon: np.ndarray) -> float:
+    """A fixed body's default ε: the smaller of its own ``size`` default and
+    :data:`FIXED_EPSILON_FRACTION` × the smallest of ``free_epsilon (k,) float64`` (the
+    free bodies' ε in its scene; none: ``size``)."""
+    if len(free_epsilon) == 0:
+        return float(size)
+    return min(float(size), FIXED_EPSILON_FRACTION * float(np.min(free_epsilon)))
+
+
+def check_epsilon(value) -> float | str | None:
+    """A body's ``epsilon`` argument: None, :data:`AUTO`, or a finite number > 0."""
+    if value is None or (isinstance(value, str) and value == AUTO):
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidArgumentError(f"epsilon must be a number or {AUTO!r}, got {value!r}")
+    eps = float(value)
+    if not (math.isfinite(eps) and eps > 0):
+        raise InvalidArgumentError(f"epsilon must be finite and > 0, got {value!r}")
+    return eps
+
+
+def shifted_tree(tree: SurrogateTree, leaf_epsilon: float) -> SurrogateTree:
+    """``tree`` with leaf ε = ``leaf_epsilon`` (> 0): the same read-only arrays except
+    ``epsilon (N,) float64``, each node's shifted by the change of the leaf ε (leaves get
+    ``leaf_epsilon`` exactly; surrogates ``max(ε_node − ε_leaf, 0) + leaf_epsilon``,
+    raised by 8 ulp so that rounding never makes a node less conservative). ``tree``
+    itself when the ε is its own. Shares the tree's geometry-only caches."""
+    leaf_epsilon = float(leaf_epsilon)
+    if leaf_epsilon == tree.leaf_epsilon:
+        return tree
+    geometric = np.maximum(tree.epsilon - tree.leaf_epsilon, 0.0)
+    epsilon = np.where(
+        tree.face >= 0, leaf_epsilon, (geometric + leaf_epsilon) * (1 + 8 * np.finfo(float).eps)
+    )
+    arrays = {name: getattr(tree, name) for name in _ARRAYS}
+    arrays["epsilon"] = epsilon
+    out = SurrogateTree(arrays, leaf_epsilon, tree.branching, tree.seed, tree.bounding_radius)
+    for name in _GEOMETRY_CACHES:
+        if name in tree.__dict__:
+            out.__dict__[name] = tree.__dict__[name]
+    return out
