@@ -31,8 +31,13 @@ sys.path.insert(0, str(ROOT))
 
 import engine  # noqa: E402
 from engine import Pose, build_tree, find_contacts, shapes  # noqa: E402
-from engine.surrogates import FITS, enclosing_triangle, fit_triangle, region_volume  # noqa: E402
-from engine.tree import _point_distances  # noqa: E402
+from engine.surrogates import (  # noqa: E402
+    FITS,
+    enclosing_triangle,
+    fit_triangle,
+    largest_distance,
+    region_volume,
+)
 
 OUT = ROOT / "bench-results"
 ETAS = (1.0, 1.2, 1.4, 1.8, 2.6)
@@ -71,7 +76,7 @@ def surrogate_properties() -> list[dict]:
             tris = mesh.triangles
             points = np.unique(tris.reshape(-1, 3), axis=0)
             literal = fit_triangle(points, tris, enclosing_triangle(points, tris), FITS["paper"])
-            literal_eps = float(_point_distances(points, literal[None]).max())
+            literal_eps = largest_distance(points, literal)
             radius = initial.bounding_radius
             row = {
                 "triangles": n,

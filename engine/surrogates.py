@@ -51,6 +51,7 @@ import numpy as np
 
 from .errors import InvalidArgumentError
 from .kernels import surrogate_fit as sf
+from .kernels import tree_build as tb
 
 __all__ = [
     "DEFAULT_FIT",
@@ -59,12 +60,10 @@ __all__ = [
     "enclosing_triangle",
     "fit_triangle",
     "functional",
+    "largest_distance",
     "region_volume",
     "resolve_fit",
 ]
-
-_ORIENTATIONS = 24
-
 
 @dataclass(frozen=True)
 class FitParameters:
@@ -143,10 +142,17 @@ def resolve_fit(fit: str | FitParameters) -> FitParameters | None:
 
 def region_volume(tri: np.ndarray, epsilon: float) -> float:
     """Volume of the ε-region of ``tri (3, 3)`` float64: 2·area·ε + perimeter·πε²/2 + 4/3·πε³."""
-    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=0), axis=1)
-    area = 0.5 * np.linalg.norm(np.cross(tri[1] - tri[0], tri[2] - tri[0]))
+    return float(tb.region_volume(np.ascontiguousarray(tri, dtype=np.float64), float(epsilon)))
+
+
+def largest_distance(points: np.ndarray, tri: np.ndarray) -> float:
+    """Largest distance of ``points (m, 3)`` float64 from the triangle ``tri (3, 3)``: the
+    exact conservative ε of a surrogate over its covered vertices (float)."""
     return float(
-        2 * area * epsilon + edges.sum() * np.pi * epsilon**2 / 2 + 4 / 3 * np.pi * epsilon**3
+        tb.largest_distance(
+            np.ascontiguousarray(points, dtype=np.float64),
+            np.ascontiguousarray(tri, dtype=np.float64),
+        )
     )
 
 
@@ -161,30 +167,13 @@ def enclosing_triangle(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
     Returns
     -------
     (3, 3) float64 — wound so that its normal agrees with the covered faces' summed normal
+    (the kernel :func:`engine.kernels.tree_build.enclosing_triangle` that tree builds use)
     """
-    centre = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
-    u, v, normal = vt[0], vt[1], np.cross(vt[0], vt[1])
-    face_normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]).sum(axis=0)
-    if normal @ face_normals < 0:  # outward, like the covered faces
-        normal, v = -normal, -v
-    heights = (points - centre) @ normal
-    centre = centre + normal * (heights.max() + heights.min()) / 2
-    flat = np.stack([(points - centre) @ u, (points - centre) @ v], axis=1)
-    # side k of the triangle has outward normal dirs[:, k] and touches the points
-    angles = np.linspace(0, 2 * np.pi / 3, _ORIENTATIONS, endpoint=False)[:, None]
-    angles = angles + np.array([0.0, 2 * np.pi / 3, 4 * np.pi / 3])
-    dirs = np.stack([np.cos(angles), np.sin(angles)], axis=2)  # (orientations, 3, 2)
-    support = (dirs @ flat.T).max(axis=2)  # (orientations, 3)
-    best = int(support.sum(axis=1).argmin())
-    dirs, support = dirs[best], support[best]
-    corners = []
-    for i, j in ((1, 2), (2, 0), (0, 1)):  # vertex opposite side i: where sides i+1, i+2 meet
-        corners.append(np.linalg.solve(dirs[[i, j]], support[[i, j]]))
-    tri = np.array([centre + c[0] * u + c[1] * v for c in corners])
-    if np.cross(tri[1] - tri[0], tri[2] - tri[0]) @ normal < 0:
-        tri = tri[[0, 2, 1]]
-    return tri
+    tris = np.asarray(tris, dtype=np.float64)
+    summed = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]).sum(axis=0)
+    out = np.empty((3, 3))
+    tb.enclosing_triangle(np.ascontiguousarray(points, dtype=np.float64), summed, out)
+    return out
 
 
 def _frame(points: np.ndarray) -> tuple[np.ndarray, float]:

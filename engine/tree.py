@@ -33,31 +33,27 @@ from __future__ import annotations
 
 import io
 import os
-from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .distance import triangle_distances
 from .errors import InvalidArgumentError
+from .kernels import tree_build as tb
 from .mesh import Mesh
-from .surrogates import (
-    DEFAULT_FIT,
-    FitParameters,
-    enclosing_triangle,
-    fit_triangle,
-    region_volume,
-    resolve_fit,
-)
+from .surrogates import DEFAULT_FIT, FitParameters, region_volume, resolve_fit
 
 __all__ = ["TREE_FORMAT", "SurrogateTree", "TreeStats", "build_tree"]
 
-TREE_FORMAT = 1
+TREE_FORMAT = 2
 """Version of the ``.npz`` layout written by :meth:`SurrogateTree.save`."""
 _ARRAYS = ("triangles", "epsilon", "level", "parent", "first_child", "child_count", "face")
 _KMEANS_ITERATIONS = 20
+_FIT_SAMPLE = 128  # covered vertices (and 3x vertex-triangle pairs) in one fit's active set
+_MAX_THREADS = 8
+_PAIR_SAMPLE = 128
 
 
 @dataclass(frozen=True)
@@ -203,6 +199,7 @@ def build_tree(
     fit: str | FitParameters = DEFAULT_FIT,
     *,
     progress: Callable[[int, int], None] | None = None,
+    threads: int | None = None,
 ) -> SurrogateTree:
     """Build the surrogate tree of ``mesh``.
 
@@ -230,117 +227,196 @@ def build_tree(
     if isinstance(branching, bool) or not isinstance(branching, int | np.integer) or branching < 2:
         raise InvalidArgumentError(f"branching must be an integer >= 2, got {branching!r}")
     params = resolve_fit(fit)
+    threads = _threads(threads)
     tris = mesh.triangles
-    centroids = tris.mean(axis=1)
-    rng = np.random.default_rng(seed)
-    nodes: dict[str, list] = {name: [] for name in _ARRAYS}
-
-    def add(triangle, eps, level, parent, face) -> int:
-        nodes["triangles"].append(triangle)
-        nodes["epsilon"].append(eps)
-        nodes["level"].append(level)
-        nodes["parent"].append(parent)
-        nodes["first_child"].append(0)
-        nodes["child_count"].append(0)
-        nodes["face"].append(face)
-        return len(nodes["face"]) - 1
-
-    all_faces = np.arange(len(tris))
-    root_tri, root_eps = _surrogate(tris[all_faces], epsilon, params)
-    queue = deque([(add(root_tri, root_eps, 0, -1, -1), all_faces)])
-    reported = 0
-    while queue:
-        node, faces = queue.popleft()
-        level = nodes["level"][node] + 1
-        if progress is not None and level > reported:
-            reported = level
-            progress(level, len(nodes["face"]))  # levels 0 … level − 1 are all built
-        nodes["first_child"][node] = len(nodes["face"])
-        if len(faces) <= branching:
-            for f in faces:
-                add(tris[f], epsilon, level, node, int(f))
-            nodes["child_count"][node] = len(faces)
-            continue
-        groups = _kmeans(centroids[faces], branching, rng)
-        for group in groups:
-            sub = faces[group]
-            tri, eps = _surrogate(tris[sub], epsilon, params)
-            queue.append((add(tri, eps, level, node, -1), sub))
-        nodes["child_count"][node] = len(groups)
-    arrays = {
-        "triangles": np.array(nodes["triangles"], dtype=np.float64).reshape(-1, 3, 3),
-        "epsilon": np.array(nodes["epsilon"], dtype=np.float64),
-        **{k: np.array(nodes[k], dtype=np.int32) for k in _ARRAYS[2:]},
-    }
-    if progress is not None:
-        progress(reported + 1, len(nodes["face"]))
+    n_faces = len(tris)
+    builder = _LevelBuilder(mesh, float(epsilon), int(branching), int(seed), params, threads)
+    arrays = builder.run(progress)
     verts = tris.reshape(-1, 3)
     radius = float(np.linalg.norm(verts - verts.mean(axis=0), axis=1).max())
+    assert arrays["face"].max() == n_faces - 1
     return SurrogateTree(arrays, epsilon, branching, seed, radius)
 
 
-def _kmeans(points: np.ndarray, k: int, rng: np.random.Generator) -> list[np.ndarray]:
-    """Split ``points (m, 3)`` into ``k`` non-empty groups (index arrays), m > k.
-
-    k-means++ seeding from the points themselves, then Lloyd iterations; an emptied
-    cluster is re-seeded with the point farthest from its centre. Coincident points
-    that k-means cannot separate are split evenly by index.
-    """
-    m = len(points)
-    centres = [points[rng.integers(m)]]
-    for _ in range(1, k):
-        d2 = np.min([((points - c) ** 2).sum(axis=1) for c in centres], axis=0)
-        total = d2.sum()
-        pick = rng.choice(m, p=d2 / total) if total > 0 else rng.integers(m)
-        centres.append(points[pick])
-    centres = np.array(centres)
-    for _ in range(_KMEANS_ITERATIONS):
-        d2 = ((points[:, None, :] - centres[None]) ** 2).sum(axis=2)
-        label = d2.argmin(axis=1)
-        for c in range(k):
-            members = label == c
-            if members.any():
-                centres[c] = points[members].mean(axis=0)
-            else:
-                far = int(d2[np.arange(m), label].argmax())
-                centres[c] = points[far]
-                label[far] = c
-    d2 = ((points[:, None, :] - centres[None]) ** 2).sum(axis=2)
-    label = d2.argmin(axis=1)
-    groups = [np.flatnonzero(label == c) for c in range(k)]
-    groups = [g for g in groups if len(g)]
-    if len(groups) < 2:  # k-means cannot separate the points: split by index
-        return [g for g in np.array_split(np.arange(m), k) if len(g)]
-    return groups
+def _threads(threads: int | None) -> int:
+    if threads is None:
+        return max(1, min(os.cpu_count() or 1, _MAX_THREADS))
+    if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or threads < 1:
+        raise InvalidArgumentError(f"threads must be an integer >= 1, got {threads!r}")
+    return int(threads)
 
 
-def _surrogate(
-    tris: np.ndarray, leaf_epsilon: float, params: FitParameters | None
-) -> tuple[np.ndarray, float]:
-    """Surrogate triangle ``(3, 3)`` and conservative ε for the triangles ``(m, 3, 3)``.
-
-    The fitted triangle (``params`` None: no fit) replaces the initial one only if its
-    ε-region with its exact ε is not larger.
-    """
-    if len(tris) == 1:
-        return tris[0].copy(), float(leaf_epsilon)
-    points = np.unique(tris.reshape(-1, 3), axis=0)
-    tri = enclosing_triangle(points, tris)
-    if params is None:
-        return tri, float(_point_distances(points, tri[None]).max() + leaf_epsilon)
-    fitted = fit_triangle(points, tris, tri, params)
-    eps, fitted_eps = _point_distances(points, np.stack([tri, fitted])).max(axis=1)
-    if region_volume(fitted, fitted_eps) <= region_volume(tri, eps):
-        tri, eps = fitted, fitted_eps
-    return tri, float(eps + leaf_epsilon)
+def _chunks(work: np.ndarray, parts: int) -> list[tuple[int, int]]:
+    """Split ``range(len(work))`` into at most ``parts`` contiguous ranges of about equal
+    summed ``work``."""
+    n = len(work)
+    if n == 0:
+        return []
+    if parts <= 1 or n == 1:
+        return [(0, n)]
+    total = np.cumsum(work, dtype=np.float64)
+    cuts = np.searchsorted(total, total[-1] * np.arange(1, parts) / parts, side="right")
+    bounds = np.unique(np.concatenate([[0], np.clip(cuts, 1, n - 1), [n]]))
+    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True))
 
 
-def _point_distances(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """Distances ``(k, m)`` from ``points (m, 3)`` to each of ``tris (k, 3, 3)``.
+class _LevelBuilder:
+    """One tree build, a level per step: the nodes of a level are split (k-means) and
+    their groups get surrogates, each in Numba kernels over ranges of nodes spread on
+    ``threads`` worker threads (the kernels release the GIL)."""
 
-    Exact kernel, float64; a point is passed as a zero-area triangle.
-    """
-    pts = np.broadcast_to(points[None, :, None, :], (len(tris), len(points), 3, 3))
-    other = np.broadcast_to(tris[:, None], pts.shape)
-    found = triangle_distances(pts.reshape(-1, 3, 3), other.reshape(-1, 3, 3), "exact", "float64")
-    return found.distance.reshape(len(tris), len(points))
+    def __init__(self, mesh, epsilon, branching, seed, params, threads) -> None:
+        self.vertices = mesh.vertices
+        self.faces = mesh.faces
+        self.tris = np.ascontiguousarray(mesh.triangles)
+        self.centroids = self.tris.mean(axis=1)
+        self.epsilon, self.branching, self.seed = epsilon, branching, seed
+        self.params = params
+        self.threads = threads
+        self.marks = [np.zeros(len(self.vertices), np.int64) for _ in range(threads)]
+        self.pool = ThreadPoolExecutor(threads) if threads > 1 else None
+
+    def _spread(self, work: np.ndarray, call) -> None:
+        """``call(lo, hi, thread)`` over ranges of about equal ``work``, one per thread."""
+        ranges = _chunks(work, self.threads)
+        if self.pool is None or len(ranges) <= 1:
+            for lo, hi in ranges:
+                call(lo, hi, 0)
+            return
+        futures = [self.pool.submit(call, lo, hi, t) for t, (lo, hi) in enumerate(ranges)]
+        for future in futures:
+            future.result()
+
+    def _surrogates(self, order, starts, counts, node_ids) -> tuple[np.ndarray, np.ndarray]:
+        n = len(starts)
+        out_tris = np.empty((n, 3, 3))
+        out_eps = np.empty(n)
+        p = self.params
+        fit = p is not None
+        values = p.array if fit else np.zeros(6)
+        iterations = int(p.iterations) if fit else 0
+        history = int(p.history) if fit else 1
+        tolerance = float(p.tolerance) if fit else 0.0
+
+        def call(lo, hi, thread):
+            tb.surrogate_nodes(
+                self.vertices, self.faces, self.tris, order, starts, counts, node_ids,
+                self.epsilon, values, fit, iterations, history, tolerance, _FIT_SAMPLE,
+                _PAIR_SAMPLE, self.seed, lo, hi, self.marks[thread], out_tris, out_eps,
+            )  # fmt: skip
+
+        self._spread(np.minimum(counts, 4 * _FIT_SAMPLE) + 8, call)
+        return out_tris, out_eps
+
+    def run(self, progress) -> dict[str, np.ndarray]:
+        try:
+            return self._run(progress)
+        finally:
+            if self.pool is not None:
+                self.pool.shutdown()
+
+    def _run(self, progress) -> dict[str, np.ndarray]:
+        n_faces, k = len(self.tris), self.branching
+        order = np.arange(n_faces, dtype=np.int64)
+        zero = np.zeros(1, np.int64)
+        root_tri, root_eps = self._surrogates(order, zero, np.array([n_faces]), zero)
+        levels = [
+            {
+                "triangles": root_tri,
+                "epsilon": root_eps,
+                "parent": np.array([-1], np.int64),
+                "face": np.array([-1], np.int64),
+            }
+        ]
+        # the surrogates of the newest level: tree index, segment of `order`
+        ids, starts, counts = zero.copy(), zero.copy(), np.array([n_faces], np.int64)
+        first_child = {}
+        next_id = 1
+        while len(ids):
+            split = counts > k
+            order_next = order.copy()
+            groups = np.zeros((len(ids), k), np.int64)
+            s_idx = np.flatnonzero(split)
+            if len(s_idx):
+                s_starts, s_counts = starts[s_idx], counts[s_idx]
+                s_ids = ids[s_idx]
+                s_groups = np.zeros((len(s_idx), k), np.int64)
+
+                def call(lo, hi, thread, s_starts=s_starts, s_counts=s_counts, s_ids=s_ids,
+                         s_groups=s_groups, order=order, order_next=order_next):  # fmt: skip
+                    tb.split_nodes(
+                        self.centroids, order, s_starts, s_counts, s_ids, k,
+                        _KMEANS_ITERATIONS, self.seed, lo, hi, order_next, s_groups,
+                    )  # fmt: skip
+
+                self._spread(s_counts * k, call)
+                groups[s_idx] = s_groups
+            order = order_next
+            # children per node: its faces as leaves (not split) or its non-empty groups
+            n_children = np.where(split, (groups > 0).sum(axis=1), counts)
+            child_parent = np.repeat(ids, n_children)
+            first = next_id + np.concatenate([[0], np.cumsum(n_children)[:-1]])
+            first_child.update(zip(ids.tolist(), zip(first.tolist(), n_children.tolist())))
+            # segment of each child within its parent's segment
+            sizes = _child_sizes(split, groups, counts, n_children)
+            child_start = np.repeat(starts, n_children) + _within(sizes, n_children)
+            is_leaf = np.repeat(~split, n_children)
+            n_new = len(child_parent)
+            tri = np.empty((n_new, 3, 3))
+            eps = np.empty(n_new)
+            face = np.full(n_new, -1, np.int64)
+            leaf_faces = order[child_start[is_leaf]]
+            tri[is_leaf] = self.tris[leaf_faces]
+            eps[is_leaf] = self.epsilon
+            face[is_leaf] = leaf_faces
+            child_ids = next_id + np.arange(n_new, dtype=np.int64)
+            sur = ~is_leaf
+            if sur.any():
+                tri[sur], eps[sur] = self._surrogates(
+                    order, child_start[sur], sizes[sur], child_ids[sur]
+                )
+            levels.append({"triangles": tri, "epsilon": eps, "parent": child_parent, "face": face})
+            next_id += n_new
+            ids, starts, counts = child_ids[sur], child_start[sur], sizes[sur]
+            if progress is not None:
+                progress(len(levels) - 1, next_id - n_new)
+        if progress is not None:
+            progress(len(levels), next_id)
+        n = next_id
+        arrays = {
+            "triangles": np.concatenate([lv["triangles"] for lv in levels]),
+            "epsilon": np.concatenate([lv["epsilon"] for lv in levels]),
+            "level": np.repeat(
+                np.arange(len(levels), dtype=np.int32), [len(lv["face"]) for lv in levels]
+            ),
+            "parent": np.concatenate([lv["parent"] for lv in levels]).astype(np.int32),
+            "face": np.concatenate([lv["face"] for lv in levels]).astype(np.int32),
+        }
+        fc = np.zeros(n, np.int32)
+        cc = np.zeros(n, np.int32)
+        if first_child:
+            keys = np.fromiter(first_child.keys(), np.int64, len(first_child))
+            vals = np.array(list(first_child.values()), np.int64).reshape(-1, 2)
+            fc[keys], cc[keys] = vals[:, 0], vals[:, 1]
+        arrays["first_child"], arrays["child_count"] = fc, cc
+        return arrays
+
+
+def _child_sizes(split, groups, counts, n_children) -> np.ndarray:
+    """Faces covered by each child, children in node order: 1 for a leaf, the group size
+    for a surrogate (the non-empty groups come first in ``groups``)."""
+    leaf_part = np.ones(int(counts[~split].sum()), np.int64)
+    sizes = np.empty(int(n_children.sum()), np.int64)
+    node_of = np.repeat(np.arange(len(counts)), n_children)
+    rank = _within(np.ones(len(sizes), np.int64), n_children)
+    take = split[node_of]
+    sizes[take] = groups[node_of[take], rank[take]]
+    sizes[~take] = leaf_part[: int((~take).sum())]
+    return sizes
+
+
+def _within(sizes: np.ndarray, n_children: np.ndarray) -> np.ndarray:
+    """Exclusive prefix sum of ``sizes`` restarted at each node's first child."""
+    total = np.cumsum(sizes) - sizes
+    first = np.concatenate([[0], np.cumsum(n_children)[:-1]])
+    return total - np.repeat(total[first[n_children > 0]], n_children[n_children > 0])

@@ -42,18 +42,15 @@ def _cross(a, b):
 
 
 @njit(**JIT)
-def _on_segment(p, a, b):
+def _on_segment(px, py, pz, ax, ay, az, bx, by, bz):
     """(t, squared distance) of the point ``a + t (b − a)``, t in [0, 1], closest to p."""
-    ab = np.empty(3)
-    ap = np.empty(3)
-    for c in range(3):
-        ab[c], ap[c] = b[c] - a[c], p[c] - a[c]
-    length2 = _dot(ab, ab)
-    t = min(1.0, max(0.0, _dot(ap, ab) / length2)) if length2 > 0.0 else 0.0
-    dist2 = 0.0
-    for c in range(3):
-        dist2 += (ap[c] - t * ab[c]) ** 2
-    return t, dist2
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    length2 = abx * abx + aby * aby + abz * abz
+    t = 0.0
+    if length2 > 0.0:
+        t = min(1.0, max(0.0, (apx * abx + apy * aby + apz * abz) / length2))
+    return t, (apx - t * abx) ** 2 + (apy - t * aby) ** 2 + (apz - t * abz) ** 2
 
 
 @njit(**JIT)
@@ -62,25 +59,33 @@ def closest_weights(p, a, b, c):
 
     Ericson, Real-Time Collision Detection §5.1.5; a degenerate triangle (a repeated
     corner, collinear corners: sine of its angle at ``a`` below 1e-12) is the nearest
-    point of its three edges.
+    point of its three edges. :func:`closest_weights_xyz` takes the coordinates.
     """
-    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    return closest_weights_xyz(
+        p[0], p[1], p[2], a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2]
+    )
+
+
+@njit(**JIT)
+def closest_weights_xyz(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """:func:`closest_weights` on scalar coordinates (no array views in hot loops)."""
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
     nx, ny, nz = aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
     ab2, ac2 = abx * abx + aby * aby + abz * abz, acx * acx + acy * acy + acz * acz
     if not nx * nx + ny * ny + nz * nz > 1e-24 * ab2 * ac2:
-        t0, e0 = _on_segment(p, a, b)
-        t1, e1 = _on_segment(p, b, c)
-        t2, e2 = _on_segment(p, c, a)
+        t0, e0 = _on_segment(px, py, pz, ax, ay, az, bx, by, bz)
+        t1, e1 = _on_segment(px, py, pz, bx, by, bz, cx, cy, cz)
+        t2, e2 = _on_segment(px, py, pz, cx, cy, cz, ax, ay, az)
         if e0 <= e1 and e0 <= e2:
             return 1.0 - t0, t0, 0.0
         return (0.0, 1.0 - t1, t1) if e1 <= e2 else (t2, 0.0, 1.0 - t2)
-    apx, apy, apz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    apx, apy, apz = px - ax, py - ay, pz - az
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
     if d1 <= 0.0 and d2 <= 0.0:
         return 1.0, 0.0, 0.0
-    bpx, bpy, bpz = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
     d3 = abx * bpx + aby * bpy + abz * bpz
     d4 = acx * bpx + acy * bpy + acz * bpz
     if d3 >= 0.0 and d4 <= d3:
@@ -89,7 +94,7 @@ def closest_weights(p, a, b, c):
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:  # d1 − d3 = |ab|² > 0
         v = d1 / (d1 - d3)
         return 1.0 - v, v, 0.0
-    cpx, cpy, cpz = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
     d5 = abx * cpx + aby * cpy + abz * cpz
     d6 = acx * cpx + acy * cpy + acz * cpz
     if d6 >= 0.0 and d5 <= d6:
@@ -108,8 +113,26 @@ def closest_weights(p, a, b, c):
 
 
 @njit(**JIT)
-def _soft_max(r, beta, coef):
-    """``S = (mean r^β)^(1/β)`` of ``r (n,)`` ≥ 0; writes ``n · ∂S/∂r_i`` to ``coef (n,)``."""
+def _power(x, exponent):
+    """``x ** exponent`` for x ≥ 0: repeated squaring when the exponent is a whole number up
+    to 1024 (β = 64 costs six multiplications instead of a ``pow`` call), else ``pow``."""
+    if exponent == np.floor(exponent) and 0.0 <= exponent <= 1024.0:
+        e = int(exponent)
+        result, base = 1.0, x
+        while e > 0:
+            if e & 1:
+                result *= base
+            base *= base
+            e >>= 1
+        return result
+    return x**exponent
+
+
+@njit(**JIT)
+def _soft_max(r, weight, beta, count, coef):
+    """``S = (Σ w_i r_i^β / count)^(1/β)`` of ``r (n,)`` ≥ 0 with weights ``weight (n,)``
+    (``count`` = Σ w: a weighted sample of a larger set stands for all of it); writes
+    ``count · ∂S/∂r_i`` to ``coef (n,)``."""
     n = r.size
     top = 0.0
     for i in range(n):
@@ -117,13 +140,26 @@ def _soft_max(r, beta, coef):
     if not top > 0.0:
         coef[:] = 0.0
         return 0.0
-    mean = 0.0
+    total = 0.0
     for i in range(n):
-        mean += (r[i] / top) ** beta
-    s = top * (mean / n) ** (1.0 / beta)
+        total += weight[i] * _power(r[i] / top, beta)
+    s = top * (total / count) ** (1.0 / beta)
     for i in range(n):
-        coef[i] = (r[i] / s) ** (beta - 1.0)
+        coef[i] = weight[i] * _power(r[i] / s, beta - 1.0)
     return s
+
+
+@njit(**JIT)
+def full_pairs(n_tris):
+    """The pairs (surrogate vertex k, covered triangle j) of the functional's second term
+    over all ``n_tris`` triangles: ``vertex (3 n_tris,)``, ``tri (3 n_tris,)`` int64."""
+    vertex = np.empty(3 * n_tris, np.int64)
+    tri = np.empty(3 * n_tris, np.int64)
+    for k in range(3):
+        for j in range(n_tris):
+            vertex[k * n_tris + j] = k
+            tri[k * n_tris + j] = j
+    return vertex, tri
 
 
 @njit(**JIT)
@@ -133,81 +169,131 @@ def objective(x, points, tris, params, grad):
     ``points (m, 3)`` covered vertices, ``tris (t, 3, 3)`` covered triangles,
     ``params (6,)`` as in the module docstring; all float64, normalised frame.
     """
+    pair_vertex, pair_tri = full_pairs(tris.shape[0])
+    w_points, w_pairs = np.ones(points.shape[0]), np.ones(pair_vertex.size)
+    work = np.empty((max(points.shape[0], pair_vertex.size), 8))
+    return objective_sampled(
+        x, points, w_points, tris, pair_vertex, pair_tri, w_pairs, params, grad, work
+    )
+
+
+@njit(**JIT)
+def objective_sampled(
+    x, points, w_points, tris, pair_vertex, pair_tri, w_pairs, params, grad, work
+):
+    """:func:`objective` over a weighted sample of its terms: covered vertices ``points
+    (m, 3)`` with weights ``w_points (m,)``, and pairs (surrogate vertex ``pair_vertex[q]``,
+    covered triangle ``tris[pair_tri[q]]``) of the second term with weights ``w_pairs``;
+    each soft maximum is the weighted mean (a sample stands for a larger group). Writes
+    the gradient to ``grad (3, 3)``; ``work (≥ max(m, pairs), 8)`` float64 is scratch.
+    """
+    n_points, n_pairs = w_points.sum(), w_pairs.sum()
     beta, alpha_area, alpha_inside, beta_normal, w_eps, w_paper = params
     grad[:] = 0.0
     value = 0.0
-    m, t = points.shape[0], tris.shape[0]
+    m = points.shape[0]
     n = m if w_eps > 0.0 else 0
-    n_paper = 3 * t if w_paper > 0.0 else 0
-    lam = np.empty((max(n, n_paper), 3))
-    diff = np.empty((max(n, n_paper), 3))
-    r = np.empty(max(n, n_paper))
-    coef = np.empty(max(n, n_paper))
+    n_paper = pair_vertex.size if w_paper > 0.0 else 0
+    lam = work[:, 0:3]
+    diff = work[:, 3:6]
+    r = work[:, 6]
+    coef = work[:, 7]
     if n > 0:  # covered vertices → surrogate: d_i = |p_i − Σ λ_k x_k|
+        x0, x1, x2 = x[0, 0], x[0, 1], x[0, 2]
+        y0, y1, y2 = x[1, 0], x[1, 1], x[1, 2]
+        z0, z1, z2 = x[2, 0], x[2, 1], x[2, 2]
         for i in range(n):
-            lam[i, 0], lam[i, 1], lam[i, 2] = closest_weights(points[i], x[0], x[1], x[2])
-            for c in range(3):
-                near = lam[i, 0] * x[0, c] + lam[i, 1] * x[1, c] + lam[i, 2] * x[2, c]
-                diff[i, c] = points[i, c] - near
-            r[i] = np.sqrt(_dot(diff[i], diff[i]))
-        value += w_eps * _soft_max(r[:n], beta, coef[:n])
+            l0, l1, l2 = closest_weights_xyz(
+                points[i, 0], points[i, 1], points[i, 2], x0, x1, x2, y0, y1, y2, z0, z1, z2
+            )
+            lam[i, 0], lam[i, 1], lam[i, 2] = l0, l1, l2
+            d0 = points[i, 0] - (l0 * x0 + l1 * y0 + l2 * z0)
+            d1 = points[i, 1] - (l0 * x1 + l1 * y1 + l2 * z1)
+            d2 = points[i, 2] - (l0 * x2 + l1 * y2 + l2 * z2)
+            diff[i, 0], diff[i, 1], diff[i, 2] = d0, d1, d2
+            r[i] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        value += w_eps * _soft_max(r[:n], w_points, beta, n_points, coef[:n])
+        g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
         for i in range(n):
             if r[i] > 0.0:
-                g = w_eps * coef[i] / (n * r[i])
-                for k in range(3):
-                    for c in range(3):
-                        grad[k, c] -= g * lam[i, k] * diff[i, c]
+                g = w_eps * coef[i] / (n_points * r[i])
+                h0, h1, h2 = g * diff[i, 0], g * diff[i, 1], g * diff[i, 2]
+                g00 += lam[i, 0] * h0
+                g01 += lam[i, 0] * h1
+                g02 += lam[i, 0] * h2
+                g10 += lam[i, 1] * h0
+                g11 += lam[i, 1] * h1
+                g12 += lam[i, 1] * h2
+                g20 += lam[i, 2] * h0
+                g21 += lam[i, 2] * h1
+                g22 += lam[i, 2] * h2
+        grad[0, 0] -= g00
+        grad[0, 1] -= g01
+        grad[0, 2] -= g02
+        grad[1, 0] -= g10
+        grad[1, 1] -= g11
+        grad[1, 2] -= g12
+        grad[2, 0] -= g20
+        grad[2, 1] -= g21
+        grad[2, 2] -= g22
     if n_paper > 0:  # surrogate vertices → covered triangles: d_kj = |x_k − c_kj|
-        for k in range(3):
-            for j in range(t):
-                q = k * t + j
-                a, b, c = tris[j, 0], tris[j, 1], tris[j, 2]
-                lam[q, 0], lam[q, 1], lam[q, 2] = closest_weights(x[k], a, b, c)
-                for c in range(3):
-                    near = lam[q, 0] * tris[j, 0, c] + lam[q, 1] * tris[j, 1, c]
-                    diff[q, c] = x[k, c] - near - lam[q, 2] * tris[j, 2, c]
-                r[q] = np.sqrt(_dot(diff[q], diff[q]))
-        value += w_paper * _soft_max(r[:n_paper], beta, coef[:n_paper])
+        for q in range(n_paper):
+            k, j = pair_vertex[q], pair_tri[q]
+            l0, l1, l2 = closest_weights_xyz(
+                x[k, 0], x[k, 1], x[k, 2],
+                tris[j, 0, 0], tris[j, 0, 1], tris[j, 0, 2],
+                tris[j, 1, 0], tris[j, 1, 1], tris[j, 1, 2],
+                tris[j, 2, 0], tris[j, 2, 1], tris[j, 2, 2],
+            )  # fmt: skip
+            d0 = x[k, 0] - (l0 * tris[j, 0, 0] + l1 * tris[j, 1, 0] + l2 * tris[j, 2, 0])
+            d1 = x[k, 1] - (l0 * tris[j, 0, 1] + l1 * tris[j, 1, 1] + l2 * tris[j, 2, 1])
+            d2 = x[k, 2] - (l0 * tris[j, 0, 2] + l1 * tris[j, 1, 2] + l2 * tris[j, 2, 2])
+            diff[q, 0], diff[q, 1], diff[q, 2] = d0, d1, d2
+            r[q] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        value += w_paper * _soft_max(r[:n_paper], w_pairs, beta, n_pairs, coef[:n_paper])
         for q in range(n_paper):
             if r[q] > 0.0:
-                g = w_paper * coef[q] / (n_paper * r[q])
-                for c in range(3):
-                    grad[q // t, c] += g * diff[q, c]
-    e = np.empty((3, 3))  # e[k] = x[k+2] − x[k+1], the edge opposite x[k]
-    for k in range(3):
-        for c in range(3):
-            e[k, c] = x[(k + 2) % 3, c] - x[(k + 1) % 3, c]
-    normal = _cross(e[1], e[2])  # (x2 − x1) × (x3 − x1)
-    size = np.sqrt(_dot(normal, normal))
+                g = w_paper * coef[q] / (n_pairs * r[q])
+                k = pair_vertex[q]
+                grad[k, 0] += g * diff[q, 0]
+                grad[k, 1] += g * diff[q, 1]
+                grad[k, 2] += g * diff[q, 2]
+    # e_k = x[k+2] − x[k+1], the edge opposite x[k]; cross = (x2 − x1) × (x3 − x1) = e_1 × e_2
+    e10, e11, e12 = x[0, 0] - x[2, 0], x[0, 1] - x[2, 1], x[0, 2] - x[2, 2]
+    e20, e21, e22 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
+    n0, n1, n2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+    size = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
     if not size > 0.0:
         return np.inf
-    for c in range(3):
-        normal[c] /= size
-    g_cross = np.zeros(3)  # ∂value/∂cross
+    n0, n1, n2 = n0 / size, n1 / size, n2 / size
+    c0 = c1 = c2 = 0.0  # ∂value/∂cross
     if alpha_area > 0.0:
         value += 0.5 * alpha_area / size**2
-        for c in range(3):
-            g_cross[c] -= alpha_area / size**3 * normal[c]
+        f = alpha_area / size**3
+        c0, c1, c2 = -f * n0, -f * n1, -f * n2
     if alpha_inside > 0.0:
-        g_normal = np.zeros(3)
+        gn0 = gn1 = gn2 = 0.0
         for k in range(3):
             for i in range(m):
-                h = 0.0
-                for c in range(3):
-                    h += (x[k, c] - points[i, c]) * normal[c]
+                h0, h1, h2 = x[k, 0] - points[i, 0], x[k, 1] - points[i, 1], x[k, 2] - points[i, 2]
+                h = h0 * n0 + h1 * n1 + h2 * n2
                 if h > 0.0:
                     value += alpha_inside / (beta_normal * m) * h**beta_normal
                     g = alpha_inside / m * h ** (beta_normal - 1.0)
-                    for c in range(3):
-                        grad[k, c] += g * normal[c]
-                        g_normal[c] += g * (x[k, c] - points[i, c])
-        along = _dot(g_normal, normal)
-        for c in range(3):
-            g_cross[c] += (g_normal[c] - along * normal[c]) / size
+                    grad[k, 0] += g * n0
+                    grad[k, 1] += g * n1
+                    grad[k, 2] += g * n2
+                    gn0, gn1, gn2 = gn0 + g * h0, gn1 + g * h1, gn2 + g * h2
+        along = gn0 * n0 + gn1 * n1 + gn2 * n2
+        c0 += (gn0 - along * n0) / size
+        c1 += (gn1 - along * n1) / size
+        c2 += (gn2 - along * n2) / size
     for k in range(3):  # cross = x1×x2 + x2×x3 + x3×x1, so ∂/∂x[k] = −e[k] × g_cross
-        part = _cross(e[k], g_cross)
-        for c in range(3):
-            grad[k, c] -= part[c]
+        a, b = (k + 2) % 3, (k + 1) % 3
+        f0, f1, f2 = x[a, 0] - x[b, 0], x[a, 1] - x[b, 1], x[a, 2] - x[b, 2]
+        grad[k, 0] -= f1 * c2 - f2 * c1
+        grad[k, 1] -= f2 * c0 - f0 * c2
+        grad[k, 2] -= f0 * c1 - f1 * c0
     return value
 
 
@@ -218,13 +304,30 @@ def minimise(x, points, tris, params, iterations, history, tolerance):
     Stops after ``iterations`` steps, when a step lowers the value by less than
     ``tolerance · (|value| + tolerance)``, or when no step along the direction helps.
     """
+    pair_vertex, pair_tri = full_pairs(tris.shape[0])
+    w_points, w_pairs = np.ones(points.shape[0]), np.ones(pair_vertex.size)
+    return minimise_sampled(
+        x, points, w_points, tris, pair_vertex, pair_tri, w_pairs,
+        params, iterations, history, tolerance,
+    )  # fmt: skip
+
+
+@njit(**JIT)
+def minimise_sampled(
+    x, points, w_points, tris, pair_vertex, pair_tri, w_pairs, params, iterations, history, tol
+):
+    """:func:`minimise` of :func:`objective_sampled` (same terms and means)."""
+    tolerance = tol
+    work = np.empty((max(points.shape[0], pair_vertex.size), 8))
     n = 9
     xs = np.empty(n)
     for i in range(n):
         xs[i] = x[i // 3, i % 3]
     grad = np.empty((3, 3))
     gs = np.empty(n)
-    f = objective(x, points, tris, params, grad)
+    f = objective_sampled(
+        x, points, w_points, tris, pair_vertex, pair_tri, w_pairs, params, grad, work
+    )
     for i in range(n):
         gs[i] = grad[i // 3, i % 3]
     evals = 1
@@ -274,7 +377,9 @@ def minimise(x, points, tris, params, iterations, history, tolerance):
             for i in range(n):
                 xs[i] = x_old[i] + step * d[i]
                 x[i // 3, i % 3] = xs[i]
-            f_new = objective(x, points, tris, params, grad)
+            f_new = objective_sampled(
+                x, points, w_points, tris, pair_vertex, pair_tri, w_pairs, params, grad, work
+            )
             evals += 1
             if f_new <= f + 1e-4 * step * slope:
                 accepted = True
