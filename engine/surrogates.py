@@ -65,6 +65,7 @@ __all__ = [
     "resolve_fit",
 ]
 
+
 @dataclass(frozen=True)
 class FitParameters:
     """Parameters of the functional (see the module docstring) and of the minimiser.
@@ -82,9 +83,9 @@ class FitParameters:
     beta_normal: float
     weight_epsilon: float
     weight_paper: float
-    iterations: int = 200
+    iterations: int = 100
     history: int = 6
-    tolerance: float = 1e-9
+    tolerance: float = 1e-6
 
     def __post_init__(self) -> None:
         values = astuple(self)

@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import io
 import os
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +54,7 @@ _KMEANS_ITERATIONS = 20
 _FIT_SAMPLE = 128  # covered vertices (and 3x vertex-triangle pairs) in one fit's active set
 _MAX_THREADS = 8
 _PAIR_SAMPLE = 128
+_MIN_FIT = 2
 
 
 @dataclass(frozen=True)
@@ -234,7 +235,6 @@ def build_tree(
     arrays = builder.run(progress)
     verts = tris.reshape(-1, 3)
     radius = float(np.linalg.norm(verts - verts.mean(axis=0), axis=1).max())
-    assert arrays["face"].max() == n_faces - 1
     return SurrogateTree(arrays, epsilon, branching, seed, radius)
 
 
@@ -301,7 +301,7 @@ class _LevelBuilder:
         def call(lo, hi, thread):
             tb.surrogate_nodes(
                 self.vertices, self.faces, self.tris, order, starts, counts, node_ids,
-                self.epsilon, values, fit, iterations, history, tolerance, _FIT_SAMPLE,
+                self.epsilon, values, fit, _MIN_FIT, iterations, history, tolerance, _FIT_SAMPLE,
                 _PAIR_SAMPLE, self.seed, lo, hi, self.marks[thread], out_tris, out_eps,
             )  # fmt: skip
 
@@ -330,7 +330,7 @@ class _LevelBuilder:
         ]
         # the surrogates of the newest level: tree index, segment of `order`
         ids, starts, counts = zero.copy(), zero.copy(), np.array([n_faces], np.int64)
-        first_child = {}
+        parents = []  # per level: (node ids, first child, child count)
         next_id = 1
         while len(ids):
             split = counts > k
@@ -356,7 +356,7 @@ class _LevelBuilder:
             n_children = np.where(split, (groups > 0).sum(axis=1), counts)
             child_parent = np.repeat(ids, n_children)
             first = next_id + np.concatenate([[0], np.cumsum(n_children)[:-1]])
-            first_child.update(zip(ids.tolist(), zip(first.tolist(), n_children.tolist())))
+            parents.append((ids, first, n_children))
             # segment of each child within its parent's segment
             sizes = _child_sizes(split, groups, counts, n_children)
             child_start = np.repeat(starts, n_children) + _within(sizes, n_children)
@@ -379,9 +379,7 @@ class _LevelBuilder:
             next_id += n_new
             ids, starts, counts = child_ids[sur], child_start[sur], sizes[sur]
             if progress is not None:
-                progress(len(levels) - 1, next_id - n_new)
-        if progress is not None:
-            progress(len(levels), next_id)
+                progress(len(levels), next_id)  # levels 0 … now all have their nodes
         n = next_id
         arrays = {
             "triangles": np.concatenate([lv["triangles"] for lv in levels]),
@@ -394,10 +392,8 @@ class _LevelBuilder:
         }
         fc = np.zeros(n, np.int32)
         cc = np.zeros(n, np.int32)
-        if first_child:
-            keys = np.fromiter(first_child.keys(), np.int64, len(first_child))
-            vals = np.array(list(first_child.values()), np.int64).reshape(-1, 2)
-            fc[keys], cc[keys] = vals[:, 0], vals[:, 1]
+        for ids, first, n_children in parents:
+            fc[ids], cc[ids] = first, n_children
         arrays["first_child"], arrays["child_count"] = fc, cc
         return arrays
 
@@ -405,13 +401,11 @@ class _LevelBuilder:
 def _child_sizes(split, groups, counts, n_children) -> np.ndarray:
     """Faces covered by each child, children in node order: 1 for a leaf, the group size
     for a surrogate (the non-empty groups come first in ``groups``)."""
-    leaf_part = np.ones(int(counts[~split].sum()), np.int64)
-    sizes = np.empty(int(n_children.sum()), np.int64)
+    sizes = np.ones(int(n_children.sum()), np.int64)
     node_of = np.repeat(np.arange(len(counts)), n_children)
     rank = _within(np.ones(len(sizes), np.int64), n_children)
     take = split[node_of]
     sizes[take] = groups[node_of[take], rank[take]]
-    sizes[~take] = leaf_part[: int((~take).sum())]
     return sizes
 
 

@@ -35,10 +35,12 @@ def _dot(a, b):
 
 
 @njit(**JIT)
-def _cross(a, b):
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
+def _dot_row(a, row, b):
+    """``a[row] · b`` without a view of the row."""
+    total = 0.0
+    for i in range(b.size):
+        total += a[row, i] * b[i]
+    return total
 
 
 @njit(**JIT)
@@ -129,23 +131,23 @@ def _power(x, exponent):
 
 
 @njit(**JIT)
-def _soft_max(r, weight, beta, count, coef):
-    """``S = (Σ w_i r_i^β / count)^(1/β)`` of ``r (n,)`` ≥ 0 with weights ``weight (n,)``
-    (``count`` = Σ w: a weighted sample of a larger set stands for all of it); writes
-    ``count · ∂S/∂r_i`` to ``coef (n,)``."""
-    n = r.size
+def _soft_max(work, n, weight, beta, count):
+    """``S = (Σ w_i r_i^β / count)^(1/β)`` of ``r_i = work[i, 6] ≥ 0`` (i < n) with weights
+    ``weight (n,)`` (``count`` = Σ w: a weighted sample of a larger set stands for all of
+    it); writes ``count · ∂S/∂r_i`` to ``work[i, 7]``."""
     top = 0.0
     for i in range(n):
-        top = max(top, r[i])
+        top = max(top, work[i, 6])
     if not top > 0.0:
-        coef[:] = 0.0
+        for i in range(n):
+            work[i, 7] = 0.0
         return 0.0
     total = 0.0
     for i in range(n):
-        total += weight[i] * _power(r[i] / top, beta)
+        total += weight[i] * _power(work[i, 6] / top, beta)
     s = top * (total / count) ** (1.0 / beta)
     for i in range(n):
-        coef[i] = weight[i] * _power(r[i] / s, beta - 1.0)
+        work[i, 7] = weight[i] * _power(work[i, 6] / s, beta - 1.0)
     return s
 
 
@@ -194,10 +196,7 @@ def objective_sampled(
     m = points.shape[0]
     n = m if w_eps > 0.0 else 0
     n_paper = pair_vertex.size if w_paper > 0.0 else 0
-    lam = work[:, 0:3]
-    diff = work[:, 3:6]
-    r = work[:, 6]
-    coef = work[:, 7]
+    # work[i]: closest-point weights (0:3), difference vector (3:6), distance (6), ∂S/∂r (7)
     if n > 0:  # covered vertices → surrogate: d_i = |p_i − Σ λ_k x_k|
         x0, x1, x2 = x[0, 0], x[0, 1], x[0, 2]
         y0, y1, y2 = x[1, 0], x[1, 1], x[1, 2]
@@ -206,27 +205,28 @@ def objective_sampled(
             l0, l1, l2 = closest_weights_xyz(
                 points[i, 0], points[i, 1], points[i, 2], x0, x1, x2, y0, y1, y2, z0, z1, z2
             )
-            lam[i, 0], lam[i, 1], lam[i, 2] = l0, l1, l2
+            work[i, 0], work[i, 1], work[i, 2] = l0, l1, l2
             d0 = points[i, 0] - (l0 * x0 + l1 * y0 + l2 * z0)
             d1 = points[i, 1] - (l0 * x1 + l1 * y1 + l2 * z1)
             d2 = points[i, 2] - (l0 * x2 + l1 * y2 + l2 * z2)
-            diff[i, 0], diff[i, 1], diff[i, 2] = d0, d1, d2
-            r[i] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        value += w_eps * _soft_max(r[:n], w_points, beta, n_points, coef[:n])
+            work[i, 3], work[i, 4], work[i, 5] = d0, d1, d2
+            work[i, 6] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        value += w_eps * _soft_max(work, n, w_points, beta, n_points)
         g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
         for i in range(n):
-            if r[i] > 0.0:
-                g = w_eps * coef[i] / (n_points * r[i])
-                h0, h1, h2 = g * diff[i, 0], g * diff[i, 1], g * diff[i, 2]
-                g00 += lam[i, 0] * h0
-                g01 += lam[i, 0] * h1
-                g02 += lam[i, 0] * h2
-                g10 += lam[i, 1] * h0
-                g11 += lam[i, 1] * h1
-                g12 += lam[i, 1] * h2
-                g20 += lam[i, 2] * h0
-                g21 += lam[i, 2] * h1
-                g22 += lam[i, 2] * h2
+            if work[i, 6] > 0.0:
+                g = w_eps * work[i, 7] / (n_points * work[i, 6])
+                h0, h1, h2 = g * work[i, 3], g * work[i, 4], g * work[i, 5]
+                l0, l1, l2 = work[i, 0], work[i, 1], work[i, 2]
+                g00 += l0 * h0
+                g01 += l0 * h1
+                g02 += l0 * h2
+                g10 += l1 * h0
+                g11 += l1 * h1
+                g12 += l1 * h2
+                g20 += l2 * h0
+                g21 += l2 * h1
+                g22 += l2 * h2
         grad[0, 0] -= g00
         grad[0, 1] -= g01
         grad[0, 2] -= g02
@@ -248,16 +248,16 @@ def objective_sampled(
             d0 = x[k, 0] - (l0 * tris[j, 0, 0] + l1 * tris[j, 1, 0] + l2 * tris[j, 2, 0])
             d1 = x[k, 1] - (l0 * tris[j, 0, 1] + l1 * tris[j, 1, 1] + l2 * tris[j, 2, 1])
             d2 = x[k, 2] - (l0 * tris[j, 0, 2] + l1 * tris[j, 1, 2] + l2 * tris[j, 2, 2])
-            diff[q, 0], diff[q, 1], diff[q, 2] = d0, d1, d2
-            r[q] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        value += w_paper * _soft_max(r[:n_paper], w_pairs, beta, n_pairs, coef[:n_paper])
+            work[q, 3], work[q, 4], work[q, 5] = d0, d1, d2
+            work[q, 6] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        value += w_paper * _soft_max(work, n_paper, w_pairs, beta, n_pairs)
         for q in range(n_paper):
-            if r[q] > 0.0:
-                g = w_paper * coef[q] / (n_pairs * r[q])
+            if work[q, 6] > 0.0:
+                g = w_paper * work[q, 7] / (n_pairs * work[q, 6])
                 k = pair_vertex[q]
-                grad[k, 0] += g * diff[q, 0]
-                grad[k, 1] += g * diff[q, 1]
-                grad[k, 2] += g * diff[q, 2]
+                grad[k, 0] += g * work[q, 3]
+                grad[k, 1] += g * work[q, 4]
+                grad[k, 2] += g * work[q, 5]
     # e_k = x[k+2] − x[k+1], the edge opposite x[k]; cross = (x2 − x1) × (x3 − x1) = e_1 × e_2
     e10, e11, e12 = x[0, 0] - x[2, 0], x[0, 1] - x[2, 1], x[0, 2] - x[2, 2]
     e20, e21, e22 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
@@ -348,17 +348,17 @@ def minimise_sampled(
         count = min(stored, history)
         for j in range(count):  # two-loop recursion, newest first
             q = (stored - 1 - j) % history
-            alpha[q] = rho[q] * _dot(s_hist[q], d)
+            alpha[q] = rho[q] * _dot_row(s_hist, q, d)
             for i in range(n):
                 d[i] -= alpha[q] * y_hist[q, i]
         if count > 0:
             q = (stored - 1) % history
-            gamma = _dot(s_hist[q], y_hist[q]) / _dot(y_hist[q], y_hist[q])
+            gamma = _dot_row(s_hist, q, y_hist[q]) / _dot_row(y_hist, q, y_hist[q])
             for i in range(n):
                 d[i] *= gamma
         for j in range(stored - count, stored):
             q = j % history
-            b = alpha[q] - rho[q] * _dot(y_hist[q], d)
+            b = alpha[q] - rho[q] * _dot_row(y_hist, q, d)
             for i in range(n):
                 d[i] += b * s_hist[q, i]
         slope = _dot(g, d)

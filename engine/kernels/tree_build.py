@@ -271,7 +271,8 @@ def enclosing_triangle(points, summed_normal, out):
     normal = np.array(
         [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
     )
-    if normal[0] * summed_normal[0] + normal[1] * summed_normal[1] + normal[2] * summed_normal[2] < 0:
+    facing = normal[0] * summed_normal[0] + normal[1] * summed_normal[1]
+    if facing + normal[2] * summed_normal[2] < 0:
         normal = -normal
         v = -v
     low, high = np.inf, -np.inf
@@ -367,11 +368,7 @@ def region_volume(tri, epsilon):
     for k in range(3):
         d = tri[k] - tri[(k + 1) % 3]
         perimeter += np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    return (
-        2 * area * epsilon
-        + perimeter * np.pi * epsilon**2 / 2
-        + 4.0 / 3.0 * np.pi * epsilon**3
-    )
+    return 2 * area * epsilon + perimeter * np.pi * epsilon**2 / 2 + 4.0 / 3.0 * np.pi * epsilon**3
 
 
 @njit(**JIT)
@@ -450,9 +447,9 @@ def _weighted_sample(key, size, state, stream):
 
 @njit(**JIT)
 def surrogate_nodes(
-    vertices, faces, tris, order, starts, counts, node_ids, leaf_epsilon,
-    params, fit, iterations, history, tolerance, sample, pair_sample, seed, lo, hi, mark, out_tris, out_eps,
-):
+    vertices, faces, tris, order, starts, counts, node_ids, leaf_epsilon, params, fit, min_fit,
+    iterations, history, tolerance, sample, pair_sample, seed, lo, hi, mark, out_tris, out_eps,
+):  # fmt: skip
     """Surrogate triangle and conservative ε of the groups ``lo … hi − 1`` of a level.
 
     Parameters
@@ -507,7 +504,7 @@ def surrogate_nodes(
         enclosing_triangle(points, summed, initial)
         eps = largest_distance(points, initial)
         out_tris[g] = initial
-        if fit:
+        if fit and count >= min_fit:
             state = _stream(seed, node_ids[g])
             _fit(
                 points, group, initial, params, iterations, history, tolerance, sample,
