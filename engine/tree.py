@@ -9,7 +9,7 @@ Each surrogate has a **conservative** ε: the maximum, over the vertices of the
 covered original triangles, of their distance to the surrogate, plus the leaf ε.
 Distance to a triangle is convex, so its maximum over a covered triangle is attained
 at a vertex: every covered triangle's ε-region lies inside the surrogate's. The
-distances come from the exact triangle kernel (a vertex is a zero-area triangle).
+distances come from the exact closest point on the surrogate (Ericson's regions).
 
 Surrogate construction (:mod:`engine.surrogates`): the initial triangle is the smallest
 enclosing equilateral triangle of the covered vertices in their mid-height PCA plane
@@ -21,7 +21,12 @@ regulariser; see :data:`engine.surrogates.FITS`). The fitted triangle replaces t
 initial one only if its ε-region — 2·area·ε + perimeter·πε²/2 + 4/3·πε³ with its exact
 conservative ε — is not larger, so fitting never makes a node worse. ``fit="paper"``
 minimises the paper's literal functional instead, ``fit="initial"`` keeps the initial
-triangle. k-means is the only random step: equal inputs and seed give identical trees.
+triangle. Randomness is keyed on the seed and the node: equal inputs and seed give
+identical trees, on any number of threads.
+
+The build is level-synchronous (:mod:`engine.kernels.tree_build`): per level, one
+k-means kernel call and one surrogate kernel call per worker thread, each over a range
+of the level's nodes; no Python work per node (docs/trees.md, "How a tree is built").
 
 Storage is flat and in breadth-first order (levels contiguous, each node's children
 contiguous): ``triangles (N, 3, 3)``, ``epsilon (N,)``, ``level``, ``parent``,
@@ -215,7 +220,9 @@ def build_tree(
         paper's literal functional; "initial", the enclosing triangle unfitted) or
         parameters of the functional
     progress : callable, optional — ``progress(levels_done, nodes_done)`` after each
-        finished level, on the building thread (levels_done counts the root's as 1)
+        finished level, on the calling thread (levels_done counts the root's as 1)
+    threads : int, optional — worker threads (default: the cores, at most 8); the tree
+        does not depend on it
 
     Returns
     -------
@@ -230,7 +237,6 @@ def build_tree(
     params = resolve_fit(fit)
     threads = _threads(threads)
     tris = mesh.triangles
-    n_faces = len(tris)
     builder = _LevelBuilder(mesh, float(epsilon), int(branching), int(seed), params, threads)
     arrays = builder.run(progress)
     verts = tris.reshape(-1, 3)

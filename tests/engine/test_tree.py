@@ -155,3 +155,34 @@ def test_bad_arguments(kwargs, match):
         build_tree(shapes.box(), **args)
     with pytest.raises(InvalidArgumentError, match="engine.Mesh"):
         build_tree("box", 0.01)
+
+
+def test_threads_and_progress_do_not_change_the_tree():
+    """The level-synchronous build gives the same tree on one thread and on several, and
+    reports every level, its nodes counted once, in order."""
+    mesh = shapes.noisy_sphere(subdivisions=3, seed=4)
+    calls = []
+    one = build_tree(mesh, 0.01, seed=3, threads=1)
+    many = build_tree(mesh, 0.01, seed=3, threads=3, progress=lambda *a: calls.append(a))
+    for name in ("triangles", "epsilon", "level", "parent", "first_child", "child_count", "face"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(many, name))
+    levels = np.bincount(one.level)
+    assert [c[0] for c in calls] == list(range(2, len(levels) + 1))
+    assert [c[1] for c in calls] == np.cumsum(levels)[1:].tolist()
+
+
+def test_large_groups_are_fitted_on_a_sample_and_stay_conservative():
+    """Groups above the sample size (the root of a 5,120-triangle sphere covers 2,562
+    vertices) are fitted on a weighted sample, but their ε is exact over every vertex."""
+    mesh = shapes.icosphere(4)
+    tree = build_tree(mesh, 0.0, seed=0)
+    points = mesh.vertices
+    exact = max(point_triangle_distance_naive(p, tree.triangles[0]) for p in points)
+    assert tree.epsilon[0] == pytest.approx(exact, abs=1e-12)
+    assert tree.stats.volume_ratio < 1.6  # a sphere's root: 1.35x its ball fitted on all
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, True])
+def test_bad_thread_counts(threads):
+    with pytest.raises(InvalidArgumentError, match="threads"):
+        build_tree(shapes.box(), 0.01, threads=threads)
