@@ -5,6 +5,14 @@ A specification is normalised (defaults filled in, arrays as lists) before it is
 so a scene rebuilt after a restart is the scene the client created; its latest stepped
 state is then restored on top. Rows of the state arrays: the bodies in the order given,
 then the planes (fixed).
+
+Body ε: a number in the body's spec is that body's ε (its tree shifted to it); none keeps
+the ε the mesh was uploaded with, except for meshes uploaded without one, whose bodies get
+``"auto"`` (the engine's default rule, :mod:`engine.halos`: a fixed body takes a tenth of
+the smallest free body's ε) when the scene is created (:func:`apply_mesh_defaults`). The
+planes' ``"epsilon"``: a number, or none (or ``"auto"``) for the same rule. Mass
+properties: ``density`` or ``mass``, with optional ``inertia`` and ``center_of_mass``
+(:mod:`engine.inertia`).
 """
 
 from __future__ import annotations
@@ -16,8 +24,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from engine import DEFAULT_SCHEME, SCHEMES, HertzSpring, LinearSpring, PaperSpring, Scene
+from engine import (
+    DEFAULT_SCHEME,
+    SCHEMES,
+    EngineError,
+    HertzSpring,
+    LinearSpring,
+    PaperSpring,
+    Scene,
+)
 from engine.arguments import KERNELS
+from engine.halos import AUTO
+from engine.inertia import check_inertia
 
 from .errors import NotFound, Unprocessable
 from .inputs import array, choice, flag, number, quaternion
@@ -28,6 +46,7 @@ __all__ = [
     "STATE",
     "LiveScene",
     "LiveScenes",
+    "apply_mesh_defaults",
     "build_scene",
     "pack_state",
     "parse_spec",
@@ -61,7 +80,7 @@ def parse_spec(body, max_bodies: int) -> dict:
         "bodies": [_body(b, f"bodies[{i}]") for i, b in enumerate(bodies)],
         "planes": [_plane(p, f"planes[{i}]") for i, p in enumerate(planes)],
         "gravity": array(body.get("gravity", [0.0, 0.0, -9.81]), "gravity", (3,)).tolist(),
-        "epsilon": number(body.get("epsilon", 0.01), "epsilon", 1e-12),
+        "epsilon": _epsilon(body.get("epsilon"), "epsilon"),
         "dt": number(body.get("dt", 1e-3), "dt", 1e-12, MAX_DT),
         "scheme": choice(body.get("scheme", DEFAULT_SCHEME), "scheme", SCHEMES),
         "kernel": choice(body.get("kernel", "hybrid"), "kernel", KERNELS),
@@ -110,7 +129,54 @@ def _body(value, where: str) -> dict:
         out["mass"] = number(value["mass"], f"{where}.mass", 1e-300)
     else:
         out["density"] = number(value.get("density", 1.0), f"{where}.density", 1e-300)
+    for name in ("inertia", "center_of_mass"):
+        if name in value and "mass" not in value:
+            raise Unprocessable(
+                f"{where}.{name} needs {where}.mass (a density leaves the mass undefined)"
+            )
+    if "inertia" in value:
+        out["inertia"] = _inertia(value["inertia"], f"{where}.inertia")
+    if "center_of_mass" in value:
+        center = array(value["center_of_mass"], f"{where}.center_of_mass", (3,))
+        out["center_of_mass"] = center.tolist()
+    if value.get("epsilon") is not None:
+        out["epsilon"] = _epsilon(value["epsilon"], f"{where}.epsilon")
     return out
+
+
+def _epsilon(value, name: str) -> float | str | None:
+    """An ε field: absent (None) or ``"auto"`` for the default rule, else a number > 0."""
+    if value is None or value == AUTO:
+        return value
+    eps = number(value, name, 0.0)
+    if not eps > 0:
+        raise Unprocessable(f"{name} must be > 0 (or {AUTO!r} for the default rule), got {value!r}")
+    return eps
+
+
+def _inertia(value, name: str) -> list:
+    """A (3, 3) inertia tensor or 3 principal moments, checked by the engine's rules."""
+    try:
+        rank = np.ndim(value)
+    except ValueError:
+        rank = None
+    if rank not in (1, 2):
+        raise Unprocessable(f"{name} must be a (3, 3) tensor or 3 principal moments")
+    checked = array(value, name, (3,) if rank == 1 else (3, 3))
+    try:
+        check_inertia(checked, name)
+    except EngineError as exc:
+        raise Unprocessable(str(exc)) from None
+    return checked.tolist()
+
+
+def apply_mesh_defaults(spec: dict, facts: dict) -> None:
+    """Give ``"epsilon": "auto"`` to the bodies whose spec gives no ε and whose mesh was
+    uploaded without one (``facts[mesh id]["epsilon_given"]`` False), so that they follow
+    the engine's default rule; the stored spec then rebuilds the same scene."""
+    for body in spec["bodies"]:
+        if body.get("epsilon") is None and not facts[body["mesh"]].get("epsilon_given", True):
+            body["epsilon"] = AUTO
 
 
 def _plane(value, where: str) -> dict:
@@ -125,6 +191,9 @@ def _plane(value, where: str) -> dict:
         "size": number(value.get("size", 10.0), f"{where}.size", 1e-9),
         "divisions": number(value.get("divisions", 16), f"{where}.divisions", 1, 256, True),
     }
+
+
+_SHAPE_KEYS = ("mesh", "density", "mass", "fixed", "epsilon", "inertia", "center_of_mass")
 
 
 def build_scene(spec: dict, tree_of, threads: int) -> Scene:
@@ -142,24 +211,27 @@ def build_scene(spec: dict, tree_of, threads: int) -> Scene:
     start = 0
     while start < len(bodies):  # runs of like bodies in one call, in order
         b = bodies[start]
-        key = (b["mesh"], b.get("density"), b.get("mass"), b["fixed"])
+        key = [b.get(k) for k in _SHAPE_KEYS]
         stop = start + 1
-        while stop < len(bodies):
-            c = bodies[stop]
-            if (c["mesh"], c.get("density"), c.get("mass"), c["fixed"]) != key:
-                break
+        while stop < len(bodies) and [bodies[stop].get(k) for k in _SHAPE_KEYS] == key:
             stop += 1
         run = bodies[start:stop]
-        scene.add_bodies(
-            tree_of(b["mesh"]),
-            [r["position"] for r in run],
-            orientations=[r["orientation"] for r in run],
-            velocities=[r["velocity"] for r in run],
-            angular_velocities=[r["angular_velocity"] for r in run],
-            density=b.get("density"),
-            mass=b.get("mass"),
-            fixed=b["fixed"],
-        )
+        try:
+            scene.add_bodies(
+                tree_of(b["mesh"]),
+                [r["position"] for r in run],
+                orientations=[r["orientation"] for r in run],
+                velocities=[r["velocity"] for r in run],
+                angular_velocities=[r["angular_velocity"] for r in run],
+                density=b.get("density"),
+                mass=b.get("mass"),
+                fixed=b["fixed"],
+                epsilon=b.get("epsilon"),
+                inertia=b.get("inertia"),
+                center_of_mass=b.get("center_of_mass"),
+            )
+        except EngineError as exc:  # e.g. a free open mesh whose hull is flat
+            raise Unprocessable(f"bodies[{start}]: {exc}") from None
         start = stop
     for p in spec["planes"]:
         scene.add_plane(p["point"], p["normal"], p["size"], p["divisions"], spec["epsilon"])

@@ -16,6 +16,7 @@ from ..inputs import array, number
 from ..scenes import (
     STATE,
     LiveScene,
+    apply_mesh_defaults,
     build_scene,
     pack_state,
     parse_spec,
@@ -30,19 +31,20 @@ router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 @router.post("")
 async def create_scene(request: Request, owner: str = Depends(owner_of)):
     """``{"bodies": [{"mesh", "position", "orientation", "velocity", "angular_velocity",
-    "density" | "mass", "fixed"}], "planes": [{"point", "normal", "size"}], "gravity",
-    "epsilon" (of the planes), "dt", "scheme", "kernel", "max_halvings", "substeps" (split
-    a step that would move a body by more than its ε), "contact_model": {"law":
-    "paper" | "linear" | "hertz", "stiffness", "damping", "friction", "slip_velocity"}}``
-    → 201 ``{"id", …}``."""
+    "density" | "mass", "inertia" ((3, 3) or 3 principal moments; needs "mass"),
+    "center_of_mass" (mesh frame; needs "mass"), "epsilon" (a number, or "auto"), "fixed"}],
+    "planes": [{"point", "normal", "size"}], "gravity", "epsilon" (of the planes; absent:
+    the default rule), "dt", "scheme", "kernel", "max_halvings", "substeps" (split a step
+    that would move a body by more than its ε), "contact_model": {"law": "paper" | "linear"
+    | "hertz", "stiffness", "damping", "friction", "slip_velocity"}}`` → 201 ``{"id", …,
+    "mass_source", "epsilon"}`` (per row: bodies, then planes)."""
     state = request.app.state
     spec = parse_spec(
         decode(await request.body(), request.headers.get("content-type")),
         state.settings.max_bodies,
     )
     meshes = sorted({b["mesh"] for b in spec["bodies"]})
-    for mesh_id in meshes:
-        known_mesh(request, owner, mesh_id)
+    apply_mesh_defaults(spec, {m: known_mesh(request, owner, m) for m in meshes})
     scene = await state.engine.run(
         "build_scene", build_scene, spec, state.store.tree, state.settings.engine_threads
     )
@@ -159,5 +161,7 @@ def _summary(scene_id: str, live: LiveScene) -> dict:
         "dt": spec["dt"],
         "scheme": spec["scheme"],
         "state": state_of(live.scene),
+        "mass_source": live.scene.mass_source.tolist(),  # mesh | convex_hull | given | fixed
+        "epsilon": live.scene.epsilon,  # each row's ε, after the default rule
         "spec": spec,
     }

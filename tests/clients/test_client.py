@@ -77,6 +77,7 @@ def test_a_remote_scene_loop(service, wire):
         scene = client.create_scene(
             bodies=[{"mesh": ball, "position": [0, 0, 0.56]}],
             planes=[{"point": [0, 0, 0], "normal": [0, 0, 1], "size": 4.0, "divisions": 4}],
+            epsilon=0.01,  # the planes' (without it: a tenth of the ball's)
             dt=2e-3,
             scheme="implicit-surrogate",
             contact_model={"damping": 0.3},

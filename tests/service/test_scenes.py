@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from harness import ServiceProcess, assert_problem, msgpack_body, post_msgpack
 
-from engine import Scene, build_tree, shapes
+from engine import Mesh, Scene, build_tree, shapes
+from engine.halos import FIXED_EPSILON_FRACTION, size_epsilon
 
 STATE = ("positions", "orientations", "velocities", "angular_velocities")
 
@@ -17,10 +18,22 @@ def _ball():
     return shapes.icosphere(2, radius=0.5)
 
 
-def _upload(client: httpx.Client) -> str:
-    mesh = _ball()
-    payload = {"vertices": mesh.vertices.tolist(), "faces": mesh.faces.tolist(), "epsilon": 0.01}
-    return client.post("/v1/meshes", json=payload).json()["id"]
+def _upload(client: httpx.Client, mesh=None, epsilon: float | None = 0.01) -> str:
+    mesh = _ball() if mesh is None else mesh
+    payload = {"vertices": mesh.vertices.tolist(), "faces": mesh.faces.tolist()}
+    if epsilon is not None:
+        payload["epsilon"] = epsilon
+    response = client.post("/v1/meshes", json=payload)
+    assert response.status_code in (200, 201), response.text
+    return response.json()["id"]
+
+
+def _open_box():
+    """A unit box without its top: an open mesh."""
+    box = shapes.box()
+    faces = box.faces[box.face_normals[:, 2] < 0.5]
+    used, inverse = np.unique(faces, return_inverse=True)
+    return Mesh(box.vertices[used], inverse.reshape(-1, 3))
 
 
 def _spec(mesh_id: str, scheme: str) -> dict:
@@ -30,6 +43,7 @@ def _spec(mesh_id: str, scheme: str) -> dict:
             {"mesh": mesh_id, "position": [1.2, 0, 0.6], "velocity": [-0.3, 0, 0], "mass": 2.0},
         ],
         "planes": [{"point": [0, 0, 0], "normal": [0, 0, 1], "size": 6.0, "divisions": 4}],
+        "epsilon": 0.01,
         "gravity": [0, 0, -9.81],
         "dt": 2e-3,
         "scheme": scheme,
@@ -106,6 +120,7 @@ def test_state_can_be_overwritten_then_stepped(http):
 
 def test_bad_scene_requests(http):
     mesh_id = _upload(http)
+    flat = _upload(http, shapes.plane(size=(2.0, 2.0)), epsilon=None)  # a free flat mesh: 422
     good = _spec(mesh_id, "explicit")
     body0 = good["bodies"][0]
     cases = [
@@ -121,6 +136,45 @@ def test_bad_scene_requests(http):
         ({**good, "contact_model": {"law": "magic"}}, 422, "contact_model.law"),
         ({**good, "contact_model": {"stiffness": 0}}, 422, "stiffness"),
         ({**good, "gravity": [0, 0]}, 422, "gravity must have shape (3,)"),
+        ({**good, "epsilon": 0}, 422, "epsilon must be > 0"),
+        ({**good, "bodies": [{**body0, "epsilon": -1}]}, 422, "bodies[0].epsilon must be"),
+        ({**good, "bodies": [{**body0, "epsilon": "thin"}]}, 422, "bodies[0].epsilon must be"),
+        ({**good, "bodies": [{**body0, "inertia": [1, 1, 1]}]}, 422, "needs bodies[0].mass"),
+        (
+            {**good, "bodies": [body0, {**body0, "center_of_mass": [0, 0, 0]}]},
+            422,
+            "bodies[1].center_of_mass needs bodies[1].mass",
+        ),
+        (
+            {
+                **good,
+                "bodies": [{**body0, "mass": 1, "inertia": [[1, 2, 0], [0, 1, 0], [0, 0, 1]]}],
+            },
+            422,
+            "bodies[0].inertia must be symmetric: [0][1] = 2 but [1][0] = 0",
+        ),
+        (
+            {**good, "bodies": [{**body0, "mass": 1, "inertia": [1, 1, 3]}]},
+            422,
+            "bodies[0].inertia's principal moments (1, 1, 3) violate the triangle inequality",
+        ),
+        (
+            {**good, "bodies": [{**body0, "mass": 1, "inertia": [1, -1, 1]}]},
+            422,
+            "bodies[0].inertia must be positive definite",
+        ),
+        ({**good, "bodies": [{**body0, "mass": 1, "inertia": [1, 1]}]}, 422, "shape (3,)"),
+        ({**good, "bodies": [{**body0, "mass": 1, "inertia": "I"}]}, 422, "bodies[0].inertia"),
+        (
+            {**good, "bodies": [{**body0, "mass": 1, "center_of_mass": [0, 0]}]},
+            422,
+            "bodies[0].center_of_mass must have shape (3,)",
+        ),
+        (
+            {**good, "bodies": [body0, {**body0, "mesh": flat}]},
+            422,
+            "bodies[1]: a free body takes its mass properties from its convex hull",
+        ),
     ]
     for body, status, words in cases:
         assert_problem(http.post("/v1/scenes", json=body), status, words)
@@ -166,3 +220,74 @@ def test_scene_state_survives_kill_9(tmp_path):
         local.step(2e-3)
     _close(more["state"], local)
     assert more["steps"] == 50
+
+
+@pytest.mark.parametrize("floor", ["uploaded mesh", "plane"])
+def test_a_ball_rests_within_one_percent_of_its_radius_with_no_epsilon_anywhere(http, floor):
+    """A radius-0.5 ball and a 10 m floor, both uploaded without ε (or the scene's plane
+    without one): the floor takes a tenth of the ball's ε, and the ball, dropped 10 cm,
+    rests with its centre less than 1 % of its radius above the floor, and not below."""
+    ball = _upload(http, _ball(), epsilon=None)
+    spec = {
+        "bodies": [{"mesh": ball, "position": [0.2, 0.1, 0.6]}],
+        "planes": [],
+        "dt": 1e-3,
+        "contact_model": {"law": "paper", "damping": 0.3},
+    }
+    if floor == "plane":
+        spec["planes"] = [{"size": 10.0}]
+    else:
+        plate = _upload(http, shapes.plane(size=(10.0, 10.0), divisions=8), epsilon=None)
+        spec["bodies"].insert(0, {"mesh": plate, "fixed": True})
+    created = http.post("/v1/scenes", json=spec)
+    assert created.status_code == 201, created.text
+    summary = created.json()
+    row = 1 if floor != "plane" else 0  # the ball's row: bodies in order, then planes
+    eps = np.asarray(summary["epsilon"], float)
+    assert eps[row] == pytest.approx(size_epsilon(_ball()), rel=1e-12)
+    assert eps[1 - row] == pytest.approx(FIXED_EPSILON_FRACTION * eps[row], rel=1e-12)
+    assert summary["mass_source"][row] == "mesh" and summary["mass_source"][1 - row] == "fixed"
+    for _ in range(3):
+        response = post_msgpack(http, f"/v1/scenes/{summary['id']}/step", {"steps": 500})
+        assert response.status_code == 200, response.text
+    state = msgpack_body(response)["state"]
+    height = float(np.asarray(state["positions"])[row, 2]) - 0.5  # the ball's lowest vertex
+    assert 0.0 <= height <= 0.01 * 0.5
+    assert np.linalg.norm(np.asarray(state["velocities"])[row]) < 1e-6
+
+
+def test_mass_properties_from_the_mesh_the_hull_or_the_caller(http):
+    ball, shell = _upload(http), _upload(http, _open_box())
+    spec = {
+        "bodies": [
+            {"mesh": ball, "position": [0, 0, 3]},
+            {"mesh": shell, "position": [3, 0, 3], "density": 2.0},
+            {
+                "mesh": shell,
+                "position": [-3, 0, 3],
+                "mass": 2.0,
+                "inertia": [[0.3, 0.0, 0.0], [0.0, 0.3, 0.0], [0.0, 0.0, 0.5]],
+                "center_of_mass": [0.0, 0.0, -0.1],
+                "epsilon": 0.02,
+            },
+        ],
+        "planes": [{"size": 10.0}],
+    }
+    created = http.post("/v1/scenes", json=spec)
+    assert created.status_code == 201, created.text
+    summary = created.json()
+    assert summary["mass_source"] == ["mesh", "convex_hull", "given", "fixed"]
+    assert summary["epsilon"][2] == 0.02 and summary["spec"]["bodies"][2]["epsilon"] == 0.02
+    local = Scene()  # the same bodies in process
+    ball_tree, shell_tree = build_tree(_ball(), 0.01), build_tree(_open_box(), 0.01)
+    local.add_body(ball_tree, position=(0, 0, 3))
+    local.add_body(shell_tree, position=(3, 0, 3), density=2.0)
+    assert local.masses[1] == pytest.approx(2.0)  # the hull: the unit box
+    given = {k: spec["bodies"][2][k] for k in ("mass", "inertia", "center_of_mass", "epsilon")}
+    local.add_body(shell_tree, position=(-3, 0, 3), **given)
+    local.add_plane(size=10.0)
+    _close(summary["state"], local)
+    stepped = http.post(f"/v1/scenes/{summary['id']}/step", json={"steps": 20}).json()
+    for _ in range(20):
+        local.step(1e-3)
+    _close(stepped["state"], local, atol=1e-12)
