@@ -8,7 +8,8 @@ a mesh is built once and its tree shifted to every other ε it is given
 (:mod:`engine.halos`), and a body stores only the index of its tree and the offset of its
 centre of mass in the mesh frame. Planes and walls are fixed bodies (infinite mass). Mass
 properties: exact for closed meshes, from the convex hull of open ones, or given
-(:mod:`engine.inertia`); ε defaults: :mod:`engine.halos`.
+(:mod:`engine.inertia`), their source in ``mass_source (n,) str`` ("mesh", "convex_hull",
+"given", "fixed"); ε defaults: :mod:`engine.halos`.
 
 Contacts of a configuration: bounding spheres of the trees' roots go through the broad
 phase (never a fixed–fixed pair); the candidate pairs go through the multiresolution
@@ -37,22 +38,15 @@ from .contacts import find_contacts, spheres
 from .distance import DEFAULT_PRECISION
 from .errors import InvalidArgumentError
 from .forces import ContactModel, PaperSpring
-from .halos import (
-    AUTO,
-    DEFAULT_RELATIVE_EPSILON,
-    check_epsilon,
-    fixed_epsilon,
-    shifted_tree,
-    size_epsilon,
-)
-from .inertia import body_mass, fixed_center, tree_mesh
+from .halos import DEFAULT_RELATIVE_EPSILON, SceneTrees, check_epsilon
+from .inertia import body_mass, fixed_center
 from .kernels import batch as kb
 from .kernels import dynamics as kd
 from .mesh import Mesh
 from .pose import Pose
 from .shapes import plane
 from .sleep import Sleep
-from .tree import SurrogateTree, build_tree
+from .tree import SurrogateTree
 
 __all__ = ["DEFAULT_RELATIVE_EPSILON", "SCHEMES", "Scene", "SceneState"]
 
@@ -180,11 +174,7 @@ class Scene:
             raise InvalidArgumentError("sleep must be a bool or an engine.sleep.Sleep")
         self.sleep = sleep or None
         self.time = 0.0
-        self.trees: list[SurrogateTree] = []  # the trees the bodies use (tree_index)
-        self._slots: dict[int, int] = {}  # id(tree) -> its index in self.trees
-        self._bases: dict[tuple, SurrogateTree] = {}  # each mesh's or tree's unshifted tree
-        self._shifts: dict[tuple, SurrogateTree] = {}  # (id(base), ε) -> shifted tree
-        self._ruled: list[tuple[np.ndarray, SurrogateTree, float]] = []  # fixed, ε by rule
+        self._trees = SceneTrees()  # each mesh built once, shifted per ε (engine.halos)
         self._bank: TreeBank | None = None
         self._multiscale = None
         self.pair_cache = PairCache(skin)
@@ -297,7 +287,7 @@ class Scene:
         """Append bodies of one shape with state ``rows``; returns their indices."""
         fixed = bool(fixed)
         epsilon = check_epsilon(epsilon)
-        base, mesh = self._base(body, epsilon)
+        base, mesh = self._trees.base(body, epsilon)
         positions, orientations, velocities, angular_velocities = rows
         k = len(positions)
         if fixed:
@@ -308,13 +298,8 @@ class Scene:
             props = body_mass(mesh, *mass_args)
             source, m, center, inertia = props.source, props.mass, props.center, props.inertia
             inverse = np.linalg.inv(inertia)
-        if epsilon is None and isinstance(body, SurrogateTree):
-            eps, rule = base.leaf_epsilon, False
-        elif epsilon is None or epsilon == AUTO:
-            eps, rule = size_epsilon(mesh), fixed  # a fixed body's is resolved below
-        else:
-            eps, rule = epsilon, False
-        first = len(self)
+        first, version = len(self), self._trees.version
+        slot = self._trees.place(body, epsilon, base, mesh, fixed, np.arange(first, first + k))
         self._wake()
         self.pair_cache.clear()  # its keys number the pairs by the body count
         self._evaluation = None
@@ -326,15 +311,16 @@ class Scene:
         self.inertia = np.concatenate([self.inertia, np.tile(inertia, (k, 1, 1))])
         self.inverse_inertia = np.concatenate([self.inverse_inertia, np.tile(inverse, (k, 1, 1))])
         self.centers = np.concatenate([self.centers, np.tile(center, (k, 1))])
-        self.tree_index = np.concatenate(
-            [self.tree_index, np.full(k, self._slot(self._shifted(base, eps)), np.int64)]
-        )
+        self.tree_index = np.concatenate([self.tree_index, np.full(k, slot, np.int64)])
         self.fixed = np.concatenate([self.fixed, np.full(k, fixed)])
         self.external_forces = np.concatenate([self.external_forces, np.zeros((k, 3))])
         self.mass_source = np.concatenate([self.mass_source, np.full(k, source)])
-        if rule:
-            self._ruled.append((np.arange(first, first + k), base, eps))
-        self._resolve()
+        index = self._trees.resolve(self.tree_index, self.fixed)  # the fixed bodies' rule
+        if index is not None:
+            self.tree_index = index
+            self._multiscale = None  # its pairs' cached arguments name the replaced trees
+        if self._trees.version != version:
+            self._bank = None
         return np.arange(first, first + k)
 
     def add_plane(
@@ -549,6 +535,11 @@ class Scene:
         return self._multiscale
 
     @property
+    def trees(self) -> list[SurrogateTree]:
+        """The trees the bodies use (``tree_index`` points into it); do not edit."""
+        return self._trees.trees
+
+    @property
     def bank(self) -> TreeBank:
         if self._bank is None:
             self._bank = TreeBank(self.trees, self.precision)
@@ -565,65 +556,6 @@ class Scene:
         return cached[1].copy()
 
     # ------------------------------------------------------------------ helpers
-    def _base(self, body, epsilon) -> tuple[SurrogateTree, Mesh]:
-        """The unshifted tree of ``body`` and its mesh: a tree itself; a mesh's tree built
-        on its first use (at ``epsilon`` when a number, else at its size default)."""
-        if isinstance(body, SurrogateTree):
-            key = ("tree", id(body))
-            self._bases.setdefault(key, body)
-            return body, tree_mesh(body)
-        if not isinstance(body, Mesh):
-            raise InvalidArgumentError("body must be an engine.Mesh or an engine.SurrogateTree")
-        key = ("mesh", id(body))
-        if key not in self._bases:
-            eps = epsilon if isinstance(epsilon, float) else size_epsilon(body)
-            tree = build_tree(body, eps)
-            tree.__dict__["_mesh"] = body
-            self._bases[key] = tree
-        return self._bases[key], body
-
-    def _shifted(self, base: SurrogateTree, epsilon: float) -> SurrogateTree:
-        """``base`` shifted to leaf ε ``epsilon`` (one tree per base and ε in a scene)."""
-        key = (id(base), float(epsilon))
-        if key not in self._shifts:
-            self._shifts[key] = shifted_tree(base, epsilon)
-        return self._shifts[key]
-
-    def _slot(self, tree: SurrogateTree) -> int:
-        """The index of ``tree`` in :attr:`trees` (appended when new)."""
-        if id(tree) not in self._slots:
-            self._slots[id(tree)] = len(self.trees)
-            self.trees.append(tree)
-            self._bank = None
-        return self._slots[id(tree)]
-
-    def _resolve(self) -> None:
-        """Give every fixed body whose ε follows the default rule the rule's ε for the
-        bodies now in the scene (:func:`engine.halos.fixed_epsilon`), and drop the trees
-        no body uses any more."""
-        if not self._ruled:
-            return
-        free = self.epsilon[~self.fixed]
-        index = self.tree_index.copy()
-        for bodies, base, size in self._ruled:
-            index[bodies] = self._slot(self._shifted(base, fixed_epsilon(size, free)))
-        if np.array_equal(index, self.tree_index):
-            return
-        self.tree_index = index
-        used = np.unique(index)
-        if len(used) < len(self.trees):
-            remap = np.full(len(self.trees), -1, np.int64)
-            remap[used] = np.arange(len(used))
-            self.trees = [self.trees[t] for t in used]
-            self.tree_index = remap[index]
-            self._slots = {id(t): i for i, t in enumerate(self.trees)}
-            bases = {id(t) for t in self._bases.values()}
-            self._shifts = {
-                k: t for k, t in self._shifts.items() if id(t) in self._slots or id(t) in bases
-            }
-        self._bank = None
-        self._multiscale = None  # its pairs' cached arguments name the replaced trees
-
     def _body(self, body: int) -> int:
         if isinstance(body, bool) or not isinstance(body, int | np.integer):
             raise InvalidArgumentError(f"body must be an index, got {body!r}")

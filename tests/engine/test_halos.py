@@ -117,6 +117,7 @@ def test_a_fixed_body_takes_a_tenth_of_the_smallest_free_body_epsilon():
     scene = Scene()
     f = scene.add_body(floor, fixed=True)  # before any free body: its own size default
     assert scene.epsilon[f] == _size(floor) == size_epsilon(floor)
+    built = scene.trees[scene.tree_index[f]]
     b = scene.add_body(ball, position=(0, 0, 2))
     assert scene.epsilon[b] == _size(ball)
     assert scene.epsilon[f] == pytest.approx(FIXED_EPSILON_FRACTION * _size(ball), rel=1e-15)
@@ -129,7 +130,7 @@ def test_a_fixed_body_takes_a_tenth_of_the_smallest_free_body_epsilon():
     assert eps[wall] == 0.07 and eps[given] == 0.02 and eps[b] == _size(ball)
     # the trees no body uses any more are dropped; the floor's shifts share its arrays
     assert len(scene.trees) == len(np.unique(scene.tree_index))
-    assert scene.trees[scene.tree_index[f]].triangles is scene._bases["mesh", id(floor)].triangles
+    assert scene.trees[scene.tree_index[f]].triangles is built.triangles
     # a fixed body's ε never exceeds its own size default
     tiny = Scene()
     grain = tiny.add_body(shapes.box((0.01, 0.01, 0.01)), fixed=True)
