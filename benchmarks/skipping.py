@@ -66,11 +66,16 @@ def grid(floor: bool) -> engine.Scene:
         return template
     scene = engine.Scene(gravity=(0.0, 0.0, 0.0))
     mesh = scenarios.sphere(1224)
+    eps = template.epsilon[0]  # the paper's ε for every sphere, fixed ones too
     bottom = template.positions[:, 2] == template.positions[:, 2].min()
     for fixed in (True, False):
         rows = bottom == fixed
         scene.add_bodies(
-            mesh, template.positions[rows], orientations=template.orientations[rows], fixed=fixed
+            mesh,
+            template.positions[rows],
+            orientations=template.orientations[rows],
+            fixed=fixed,
+            epsilon=eps,
         )
     return scene
 

@@ -39,14 +39,14 @@ def scene(kind: str, scheme: str, skin: float) -> Scene:
     s = Scene(scheme=scheme, contact_model=model, skin=skin, max_halvings=2)
     ball = shapes.icosphere(3, radius=0.5)
     if kind == "resting":
-        s.add_plane(size=4.0, divisions=8)
-        s.add_body(ball, position=(0.0, 0.0, 0.5 + 0.019))
+        s.add_plane(size=4.0, divisions=8, epsilon=0.01)  # halos of 0.01 given, as measured
+        s.add_body(ball, position=(0.0, 0.0, 0.5 + 0.019), epsilon=0.01)
         return s
     theta = math.radians(20.0)
     normal = np.array([math.sin(theta), 0.0, math.cos(theta)])
     downhill = np.array([math.cos(theta), 0.0, -math.sin(theta)])
-    s.add_plane(normal=normal, size=8.0, divisions=16)
-    s.add_body(ball, position=normal * (0.5 + 0.019) - 2.0 * downhill)
+    s.add_plane(normal=normal, size=8.0, divisions=16, epsilon=0.01)
+    s.add_body(ball, position=normal * (0.5 + 0.019) - 2.0 * downhill, epsilon=0.01)
     return s
 
 
