@@ -83,9 +83,9 @@ class FitParameters:
     beta_normal: float
     weight_epsilon: float
     weight_paper: float
-    iterations: int = 100
+    iterations: int = 50
     history: int = 6
-    tolerance: float = 1e-6
+    tolerance: float = 1e-5
 
     def __post_init__(self) -> None:
         values = astuple(self)
