@@ -6,8 +6,8 @@ Run: ``.venv/bin/python benchmarks/realmeshes.py [--quick] [--only NAME ...] [--
 and ``../shared/meshes/``). Prints three tables, writes ``bench-results/realmeshes.json``.
 
 Meshes: every STL/OBJ of ``../shared/meshes/`` through :func:`engine.load_mesh` with its
-defaults (one they reject counts as rejected and is then loaded with
-``remove_degenerate=True``; ``mesh.repair.summary()`` is reported where the engine has it),
+defaults, which repair (``mesh.repair.summary()`` is reported; a mesh they reject is counted
+as rejected, its message shown, and left out),
 and real meshes subdivided (:func:`subdivide_to`: midpoint split, whole levels, then a spread
 subset of faces) to ≥ 50k (panda_link1 ×4), ≥ 125k (ur5e_upperarm_visual ×4) and ≥ 1M
 triangles (iiwa_link7_visual ×16, then 1 face in 6.4 split once more; ``--quick`` skips it).
@@ -186,16 +186,13 @@ def run_worker(kind: str, mesh_file: Path, epsilon: float, repeat: int, tree_out
 
 # ---------------------------------------------------------------------- meshes
 def make_mesh(vertices, faces):
-    from engine import InvalidMeshError, Mesh
+    from engine import Mesh
 
-    try:
-        return Mesh(vertices, faces)
-    except InvalidMeshError:  # the API before repair-by-default
-        return Mesh(vertices, faces, remove_degenerate=True)
+    return Mesh(vertices, faces)  # repaired by default
 
 
 def load_real(path: Path) -> tuple:
-    """(mesh, row): ``load_mesh`` with its defaults; if they reject, the repaired load."""
+    """(mesh, row): ``load_mesh`` with its defaults (repair); mesh None if it rejects."""
     from engine import InvalidMeshError, load_mesh
 
     row = {"name": path.stem, "file": path.name, "rejected": None}
@@ -204,18 +201,14 @@ def load_real(path: Path) -> tuple:
         mesh = load_mesh(path)
     except InvalidMeshError as exc:
         row["rejected"] = str(exc)
-        mesh = load_mesh(path, remove_degenerate=True)
+        return None, row | {"load_seconds": time.perf_counter() - start, "repair": None}
     row["load_seconds"] = time.perf_counter() - start
     return mesh, row | {"repair": repair_info(mesh)}
 
 
 def repair_info(mesh):
-    """``mesh.repair.summary()`` where the engine has it, else the dropped faces' count."""
-    repair = getattr(mesh, "repair", None)
-    if repair is not None and hasattr(repair, "summary"):
-        summary = repair.summary()
-        return summary if isinstance(summary, dict | str) else str(summary)
-    return {"removed_faces": int(len(getattr(mesh, "removed_faces", ())))}
+    """``mesh.repair.summary()``: what load_mesh's repair changed."""
+    return mesh.repair.summary()
 
 
 def subdivide_to(mesh, target: int):
@@ -238,8 +231,10 @@ def subdivide_to(mesh, target: int):
 def mesh_rows(args) -> tuple[dict, list[dict]]:
     meshes, rows = {}, []
     for path in sorted(p for p in SHARED.iterdir() if p.suffix.lower() in (".stl", ".obj")):
-        meshes[path.stem], row = load_real(path)
+        mesh, row = load_real(path)
         rows.append(row)
+        if mesh is not None:
+            meshes[path.stem] = mesh
     for name, source, target in GENERATED:
         named = bool(args.only) and name in args.only
         if (args.only and not named) or (args.quick and target >= 1_000_000 and not named):
@@ -254,7 +249,10 @@ def mesh_rows(args) -> tuple[dict, list[dict]]:
     if unknown:
         sys.exit(f"unknown mesh(es) {sorted(unknown)}; known: {sorted(meshes)}")
     for row in rows:
-        m = meshes[row["name"]]
+        m = meshes.get(row["name"])
+        if m is None:  # rejected by load_mesh
+            row.update(triangles=0, vertices=0, diameter=0.0, closed=None)
+            continue
         row.update(triangles=m.n_faces, vertices=m.n_vertices, diameter=m.diameter)
         row["closed"] = bool(m.is_closed)
     rows = [r for r in rows if r["name"] in keep]
@@ -521,8 +519,8 @@ def main() -> None:
     )
     for r in rows:
         note = r["repair"]
-        if r["rejected"]:  # the message after the file name, then the repaired load's counts
-            note = f"REJECTED ({r['rejected'].split(chr(39) + ': ')[-1][:60]}...); {note}"
+        if r["rejected"]:  # the message after the file name
+            note = f"REJECTED ({r['rejected'].split(chr(39) + ': ')[-1][:80]}...)"
         print(
             f"  {r['name']:<26} {r['triangles']:>9,} {r['vertices']:>9,} {r['closed']!s:>6}  {note}"
         )

@@ -24,6 +24,7 @@ from .mesh import MassProperties, Mesh, load_mesh
 from .picard import StepStats, TunnellingWarning
 from .pose import Pose
 from .proximity import MeshDistance, mesh_distance
+from .repair import RepairReport, repair_mesh
 from .scene import DEFAULT_SCHEME, SCHEMES, Scene, SceneState
 from .tree import SurrogateTree, TreeStats, build_tree
 from .warmup import warmup
@@ -67,6 +68,8 @@ __all__ = [
     "SurrogateTree",
     "build_tree",
     "load_mesh",
+    "RepairReport",
+    "repair_mesh",
     "MeshDistance",
     "mesh_distance",
     "scenarios",

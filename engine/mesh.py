@@ -1,8 +1,10 @@
 """Validated, immutable triangle meshes with exact mass properties.
 
 A :class:`Mesh` owns ``vertices (V, 3) float64`` and ``faces (F, 3) int32`` (C-contiguous,
-read-only) and is validated on construction; :func:`load_mesh` reads any format trimesh
-reads. Mass properties (volume, centre of mass, inertia tensor) come from exact
+read-only); it is validated and repaired on construction (:mod:`engine.repair`: duplicate
+vertices merged, degenerate faces and unreferenced vertices dropped, all reported in
+``mesh.repair``; ``strict=True`` rejects instead). :func:`load_mesh` reads any format
+trimesh reads. Mass properties (volume, centre of mass, inertia tensor) come from exact
 signed-tetrahedron integration and exist only for closed, consistently oriented meshes;
 open meshes such as planes are valid meshes without mass properties.
 """
@@ -19,74 +21,16 @@ import numpy as np
 import trimesh
 
 from engine.errors import InvalidArgumentError, InvalidMeshError
+from engine.repair import (
+    RepairReport,
+    as_faces,
+    as_vertices,
+    merge_equal,
+    readonly,
+    repair_arrays,
+)
 
 __all__ = ["MassProperties", "Mesh", "load_mesh"]
-
-_MAX_LISTED = 5  # offending indices quoted in an error message
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.ascontiguousarray(a)
-    a.flags.writeable = False
-    return a
-
-
-def _listing(idx: np.ndarray) -> str:
-    shown = ", ".join(str(int(i)) for i in idx[:_MAX_LISTED])
-    more = ", ..." if idx.size > _MAX_LISTED else ""
-    return f"{idx.size} face(s) (indices {shown}{more})"
-
-
-def _as_vertices(vertices: Any) -> np.ndarray:
-    try:
-        v = np.asarray(vertices)
-    except Exception as exc:  # ragged nested sequences and the like
-        raise InvalidMeshError(f"vertices cannot be read as an array: {exc}") from exc
-    if v.dtype.kind not in "iuf":
-        raise InvalidMeshError(f"vertices must be numeric (int or float), got dtype {v.dtype}")
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise InvalidMeshError(f"vertices must have shape (V, 3), got {v.shape}")
-    if v.shape[0] == 0:
-        raise InvalidMeshError("mesh has no vertices")
-    v = v.astype(np.float64)
-    bad = np.flatnonzero(~np.isfinite(v).all(axis=1))
-    if bad.size:
-        raise InvalidMeshError(
-            f"vertex {int(bad[0])} has a non-finite coordinate {v[bad[0]].tolist()} "
-            f"({bad.size} non-finite vertex/vertices in total)"
-        )
-    return v
-
-
-def _as_faces(faces: Any, n_vertices: int) -> np.ndarray:
-    try:
-        f = np.asarray(faces)
-    except Exception as exc:
-        raise InvalidMeshError(f"faces cannot be read as an array: {exc}") from exc
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise InvalidMeshError(f"faces must have shape (F, 3), got {f.shape}")
-    if f.shape[0] == 0:
-        raise InvalidMeshError("mesh has no faces")
-    if f.dtype.kind == "f":
-        ok = np.isfinite(f).all(axis=1) & (f == np.round(f)).all(axis=1)
-        bad = np.flatnonzero(~ok)
-        if bad.size:
-            raise InvalidMeshError(
-                f"faces must hold integer vertex indices; face {int(bad[0])} is "
-                f"{f[bad[0]].tolist()} ({bad.size} non-integral face(s))"
-            )
-    elif f.dtype.kind not in "iu":
-        raise InvalidMeshError(f"faces must hold integer vertex indices, got dtype {f.dtype}")
-    if n_vertices > np.iinfo(np.int32).max:
-        raise InvalidMeshError(f"too many vertices for int32 indices: {n_vertices}")
-    for cond, what in ((f < 0, "a negative"), (f >= n_vertices, "an out-of-range")):
-        bad = np.flatnonzero(cond.any(axis=1))
-        if bad.size:
-            raise InvalidMeshError(
-                f"face {int(bad[0])} {f[bad[0]].astype(np.int64).tolist()} has {what} vertex "
-                f"index (valid: 0..{n_vertices - 1}); {bad.size} such face(s)"
-            )
-    return f.astype(np.int32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,37 +56,52 @@ class MassProperties:
 
 
 class Mesh:
-    """An immutable, validated triangle mesh.
+    """An immutable, validated triangle mesh, repaired by default.
 
     Parameters
     ----------
     vertices : (V, 3) array_like of int or float
-        Vertex coordinates; stored as float64. All must be finite. Unreferenced vertices
-        are allowed.
+        Vertex coordinates; stored as float64. All must be finite.
     faces : (F, 3) array_like of int, or of integral float
         Vertex indices per triangle, in ``0..V-1``; stored as int32. Counter-clockwise
         seen from outside for closed meshes.
-    remove_degenerate : bool, default False
-        Drop degenerate faces (a repeated vertex index or area <= `area_tolerance`)
-        instead of rejecting the mesh; their original indices go to `removed_faces`.
+    strict : bool, default False
+        Reject, instead of repairing, a mesh that repair would change: vertices within
+        `merge_tolerance` of another used vertex, faces that repeat a vertex index (in
+        the input or after merging) or have zero area, and unreferenced vertices (repair
+        drops them too, so the arrays would not be the caller's). A mesh that passes has
+        exactly the arrays given (converted).
+    merge_tolerance : float, optional
+        Absolute distance (``>= 0``) within which vertices are merged; 0 merges exact
+        duplicates only. Default ``2**-21 * D`` (≈ 4.77e-7 D, four float32 steps of a
+        coordinate the size of the mesh; why: :mod:`engine.repair`), ``D`` the
+        bounding-box diagonal of the vertices used by faces that do not repeat an index.
     area_tolerance : float, optional
-        Faces with area <= this are degenerate. Default ``1e-12 * diameter**2`` where
-        `diameter` is the bounding-box diagonal of the referenced vertices.
+        Faces with area ``<=`` this (after merging) have zero area. Default
+        ``1e-12 * D**2``.
+
+    By default the mesh is repaired (:mod:`engine.repair`): duplicate vertices merged,
+    faces that repeat a vertex index or have zero area dropped, unreferenced vertices
+    dropped; `repair` says what changed and maps kept faces and vertices to the input's.
+    A mesh that needs no repair keeps the given arrays bit for bit. Open edges, flipped
+    faces and non-manifold edges are valid (the mesh is then not watertight).
 
     Raises
     ------
     InvalidMeshError
-        Wrong shape or dtype, non-finite coordinates, indices out of range, degenerate
-        faces (unless removed) or no faces left; the message says which and where.
+        Wrong shape or dtype, non-finite coordinates, indices out of range, no face left
+        after repair, or (`strict`) anything repair would change; the message says what
+        and where (counts and the first input indices).
     InvalidArgumentError
-        `area_tolerance` negative or not finite.
+        A tolerance negative or not finite.
 
     Attributes
     ----------
-    vertices : (V, 3) float64, read-only
-    faces : (F, 3) int32, read-only
-    removed_faces : (R,) int64, read-only
-        Original indices of the faces dropped by ``remove_degenerate=True`` (else empty).
+    vertices : (V', 3) float64, read-only
+    faces : (F', 3) int32, read-only
+    repair : RepairReport
+        What repair changed (``repair.changed`` is False for a clean mesh), with
+        ``repair.face_map (F',)`` and ``repair.vertex_map (V,)`` to the input's indices.
     """
 
     def __init__(
@@ -150,43 +109,21 @@ class Mesh:
         vertices: Any,
         faces: Any,
         *,
-        remove_degenerate: bool = False,
+        strict: bool = False,
+        merge_tolerance: float | None = None,
         area_tolerance: float | None = None,
     ) -> None:
-        v = _as_vertices(vertices)
-        f = _as_faces(faces, v.shape[0])
-        repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
-        tri = v[f]
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-        if area_tolerance is None:
-            used = tri[~repeated].reshape(-1, 3)
-            diag = float(np.linalg.norm(np.ptp(used, axis=0))) if used.size else 0.0
-            tol = 1e-12 * diag**2
-        else:
-            tol = float(area_tolerance)
-            if not np.isfinite(tol) or tol < 0:
-                raise InvalidArgumentError(f"area_tolerance must be finite and >= 0, got {tol}")
-        zero = ~repeated & (area <= tol)
-        if not remove_degenerate:
-            if repeated.any():
-                raise InvalidMeshError(
-                    f"{_listing(np.flatnonzero(repeated))} repeat a vertex index "
-                    "(pass remove_degenerate=True to drop them)"
-                )
-            if zero.any():
-                raise InvalidMeshError(
-                    f"{_listing(np.flatnonzero(zero))} have zero area (<= {tol:.3g}) "
-                    "(pass remove_degenerate=True to drop them)"
-                )
-        removed = np.flatnonzero(repeated | zero).astype(np.int64)
-        if removed.size == f.shape[0]:
-            raise InvalidMeshError(f"all {f.shape[0]} face(s) are degenerate; no face is left")
-        keep = np.ones(f.shape[0], dtype=bool)
-        keep[removed] = False
-        self.vertices = _readonly(v)
-        self.faces = _readonly(f[keep])
-        self.removed_faces = _readonly(removed)
-        self._areas = _readonly(area[keep])
+        v = as_vertices(vertices)
+        f = as_faces(faces, v.shape[0])
+        v, f, area, report = repair_arrays(v, f, merge_tolerance, area_tolerance)
+        if strict and report.changed:
+            raise InvalidMeshError(
+                f"mesh needs repair (rejected in strict mode): {report.describe()}"
+            )
+        self.vertices = readonly(v)
+        self.faces = readonly(f)
+        self._areas = readonly(area)
+        self.repair: RepairReport = report
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -202,7 +139,7 @@ class Mesh:
     @cached_property
     def triangles(self) -> np.ndarray:
         """(F, 3, 3) float64, read-only: ``triangles[f, k]`` is vertex ``k`` of face ``f``."""
-        return _readonly(self.vertices[self.faces])
+        return readonly(self.vertices[self.faces])
 
     @property
     def areas(self) -> np.ndarray:
@@ -214,13 +151,13 @@ class Mesh:
         """(F, 3) float64, read-only: unit normals by the right-hand rule on the winding."""
         t = self.triangles
         n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-        return _readonly(n / np.linalg.norm(n, axis=1, keepdims=True))
+        return readonly(n / np.linalg.norm(n, axis=1, keepdims=True))
 
     @cached_property
     def bounds(self) -> np.ndarray:
         """(2, 3) float64, read-only: min and max corner of the referenced vertices."""
         p = self.triangles.reshape(-1, 3)
-        return _readonly(np.stack([p.min(axis=0), p.max(axis=0)]))
+        return readonly(np.stack([p.min(axis=0), p.max(axis=0)]))
 
     @property
     def diameter(self) -> float:
@@ -282,7 +219,7 @@ class Mesh:
         cov = second - volume * np.outer(com, com)  # second moments about the centre of mass
         cov = 0.5 * (cov + cov.T)
         inertia = np.trace(cov) * np.eye(3) - cov
-        return volume, _readonly(com + o), _readonly(inertia)
+        return volume, readonly(com + o), readonly(inertia)
 
     @property
     def volume(self) -> float:
@@ -305,7 +242,7 @@ class Mesh:
         if not (np.isfinite(density) and density > 0):
             raise InvalidArgumentError(f"density must be finite and > 0, got {density}")
         volume, com, inertia = self._unit_mass
-        return MassProperties(density * volume, volume, com, _readonly(density * inertia))
+        return MassProperties(density * volume, volume, com, readonly(density * inertia))
 
     # ------------------------------------------------------------------ conversions
     def to_trimesh(self) -> trimesh.Trimesh:
@@ -351,9 +288,9 @@ def _scene_arrays(scene: trimesh.Scene, merge: bool) -> tuple[np.ndarray, np.nda
         v = v @ t[:3, :3].T + t[:3, 3]
         if np.linalg.det(t[:3, :3]) < 0:
             f = f[:, ::-1]
-        if merge:  # exact duplicates only: STL stores a triangle soup
-            v, inverse = np.unique(v, axis=0, return_inverse=True)
-            f = inverse.reshape(-1)[f]
+        if merge:  # equal coordinates only (STL stores a triangle soup), in file order
+            first, inverse = merge_equal(v)
+            v, f = v[first], inverse[f]
         verts.append(v)
         faces.append(f + offset)
         offset += len(v)
@@ -366,9 +303,10 @@ def load_mesh(
     source: str | os.PathLike[str] | BinaryIO,
     file_type: str | None = None,
     *,
-    merge_vertices: bool = True,
-    remove_degenerate: bool = False,
+    strict: bool = False,
+    merge_tolerance: float | None = None,
     area_tolerance: float | None = None,
+    merge_vertices: bool = True,
 ) -> Mesh:
     """Read a mesh file (STL, OBJ, PLY, OFF, GLB/GLTF, ... anything trimesh reads).
 
@@ -378,11 +316,15 @@ def load_mesh(
         A path, or an open binary stream (then `file_type` is required).
     file_type : str, optional
         Format name such as ``"stl"``; by default taken from the path's suffix.
+    strict, merge_tolerance, area_tolerance
+        Passed to :class:`Mesh`: the loaded arrays are repaired (or, `strict`, rejected
+        if they need repair) and ``mesh.repair`` reports the changes, with indices into
+        the loaded arrays (after `merge_vertices`).
     merge_vertices : bool, default True
-        Merge vertices with bit-identical coordinates within each geometry, so that
-        triangle soups (STL) become closed meshes. No face is dropped by merging.
-    remove_degenerate, area_tolerance
-        Passed to :class:`Mesh`.
+        Part of loading, not of repair (not reported, and allowed in strict mode): merge
+        vertices with equal coordinates within each geometry, so that triangle soups
+        (STL) become connected meshes; vertices keep the order of their first occurrence.
+        No face is dropped by this merge.
 
     Returns
     -------
@@ -426,7 +368,11 @@ def load_mesh(
         ) from exc
     try:
         return Mesh(
-            vertices, faces, remove_degenerate=remove_degenerate, area_tolerance=area_tolerance
+            vertices,
+            faces,
+            strict=strict,
+            merge_tolerance=merge_tolerance,
+            area_tolerance=area_tolerance,
         )
     except InvalidMeshError as exc:
         raise InvalidMeshError(f"invalid {file_type} mesh {where}: {exc}") from exc

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from engine.errors import InvalidArgumentError, InvalidMeshError
 from engine.mesh import MassProperties, Mesh, load_mesh
+from engine.repair import RepairReport
 from engine.shapes import box, noisy_sphere, plane, torus
 
 TETRA_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
@@ -52,7 +53,6 @@ def parallel_axis(inertia: np.ndarray, mass: float, d: np.ndarray) -> np.ndarray
         ([[0, 0, 0], [np.inf, 0, 0], [0, 1, 0]], [[0, 1, 2]], "vertex 1 has a non-finite"),
         (TETRA_V, [[0, 2, 1], [0, 1, 4]], r"face 1 \[0, 1, 4\] has an out-of-range"),
         (TETRA_V, [[0, 2, 1], [1, 2, 3], [0, -1, 3]], "face 2 .* has a negative"),
-        (TETRA_V, [[0, 2, 1], [1, 1, 3]], r"1 face\(s\) \(indices 1\) repeat a vertex"),
         (TETRA_V, np.zeros((0, 3), int), "no faces"),
         (np.zeros((0, 3)), [[0, 1, 2]], "no vertices"),
         (TETRA_V[:, :2], TETRA_F, r"vertices must have shape \(V, 3\)"),
@@ -71,33 +71,51 @@ def test_invalid_meshes_are_rejected_with_a_precise_message(vertices, faces, mat
         Mesh(vertices, faces)
 
 
-def test_zero_area_faces_rejected_or_removed_with_report():
+def test_degenerate_faces_are_repaired_by_default_and_rejected_when_strict():
     v = np.vstack([TETRA_V, [[2, 0, 0], [3, 0, 0]]])  # 4, 5 collinear with 1
     f = np.vstack([TETRA_F, [[1, 4, 5]], TETRA_F[:1], [[1, 5, 4]], [[0, 0, 2]]])
-    with pytest.raises(InvalidMeshError, match=r"repeat a vertex index"):
-        Mesh(v, f)
-    with pytest.raises(InvalidMeshError, match=r"2 face\(s\) \(indices 4, 6\) have zero area"):
-        Mesh(v, f[:7])
-    mesh = Mesh(v, f, remove_degenerate=True)
-    np.testing.assert_array_equal(mesh.removed_faces, [4, 6, 7])
-    assert mesh.removed_faces.dtype == np.int64
-    assert mesh.n_faces == 5 and mesh.n_vertices == 6  # unreferenced vertices stay
+    mesh = Mesh(v, f)
+    report = mesh.repair
+    assert isinstance(report, RepairReport) and report.changed
+    np.testing.assert_array_equal(report.zero_area_faces, [4, 6])
+    np.testing.assert_array_equal(report.repeated_index_faces, [7])
+    assert report.zero_area_faces.dtype == report.repeated_index_faces.dtype == np.int64
+    np.testing.assert_array_equal(report.face_map, [0, 1, 2, 3, 5])
+    # 4 and 5 were used only by dropped faces
+    np.testing.assert_array_equal(report.vertex_map, [0, 1, 2, 3, -1, -1])
+    assert (report.merged_vertices, report.unreferenced_vertices) == (0, 2)
+    assert mesh.n_faces == 5 and mesh.n_vertices == 4
     np.testing.assert_array_equal(mesh.faces, np.vstack([TETRA_F, TETRA_F[:1]]))
-    assert Mesh(TETRA_V, TETRA_F).removed_faces.size == 0
+    np.testing.assert_array_equal(mesh.vertices, TETRA_V)
+    with pytest.raises(InvalidMeshError) as caught:
+        Mesh(v, f, strict=True)
+    message = str(caught.value)
+    assert message.startswith("mesh needs repair (rejected in strict mode): ")
+    assert "1 face(s) (indices 7) repeat a vertex index and would be dropped" in message
+    tol = 1e-12 * (3**2 + 1**2 + 1**2)  # default: 1e-12 D**2, D the diagonal of [0, 3]x[0, 1]^2
+    assert f"2 face(s) (indices 4, 6) have zero area (<= {tol:.3g}) and would be dropped" in message
+    assert "2 vertex/vertices (indices 4, 5) are used by no face" in message
+    assert "remove_degenerate" not in message and "pass" not in message
+    with pytest.raises(InvalidMeshError, match=r"1 face\(s\) \(indices 1\) repeat a vertex index"):
+        Mesh(TETRA_V, [[0, 2, 1], [1, 1, 3]], strict=True)
+    assert Mesh(TETRA_V, TETRA_F, strict=True).repair.changed is False
 
 
 def test_area_tolerance_and_all_degenerate():
     tiny = [[0, 0, 0], [1, 0, 0], [0, 1e-3, 0]]  # area 5e-4
     assert Mesh(tiny, [[0, 1, 2]]).n_faces == 1
-    with pytest.raises(InvalidMeshError, match="zero area"):
-        Mesh(tiny, [[0, 1, 2]], area_tolerance=1e-3)
-    with pytest.raises(InvalidMeshError, match="no face is left"):
-        Mesh(tiny, [[0, 1, 2]], area_tolerance=1e-3, remove_degenerate=True)
-    with pytest.raises(InvalidMeshError, match="no face is left"):
-        Mesh([[0, 0, 0]] * 3, [[0, 1, 2]], remove_degenerate=True)
+    assert Mesh(tiny, [[0, 1, 2]], area_tolerance=4e-4, strict=True).n_faces == 1
+    for strict in (False, True):
+        with pytest.raises(InvalidMeshError, match=r"1 have zero area <= 0.001.*no face is left"):
+            Mesh(tiny, [[0, 1, 2]], area_tolerance=1e-3, strict=strict)
+        all_repeat = r"all 1 face\(s\) are degenerate \(1 repeat a vertex"
+        with pytest.raises(InvalidMeshError, match=all_repeat):
+            Mesh([[0, 0, 0]] * 3, [[0, 1, 2]], strict=strict)  # merged into one vertex
     for bad in (-1.0, np.nan, np.inf):
         with pytest.raises(InvalidArgumentError, match="area_tolerance"):
             Mesh(tiny, [[0, 1, 2]], area_tolerance=bad)
+        with pytest.raises(InvalidArgumentError, match="merge_tolerance"):
+            Mesh(tiny, [[0, 1, 2]], merge_tolerance=bad)
 
 
 def test_storage_is_typed_contiguous_and_read_only():
