@@ -12,11 +12,12 @@ from fastapi import FastAPI, Request
 import engine
 
 from .banks import BankCache
+from .builds import BuildJobs
 from .codecs import BodyLimit
 from .compute import EngineRunner
 from .errors import install_handlers
 from .metrics import Metrics
-from .routers import contacts, health, meshes, scenes
+from .routers import contacts, health, jobs, meshes, scenes
 from .scenes import LiveScenes
 from .settings import Settings
 from .store import Store
@@ -27,8 +28,9 @@ log = logging.getLogger("mrdem.service")
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
-    """The service app. The store opens and the kernel warm-up starts (in a background
-    thread: ``/readyz`` answers 503 until it is done) when the app starts."""
+    """The service app. When the app starts, the store opens, unfinished tree builds of an
+    earlier run are queued again (:class:`BuildJobs`, background threads) and the kernel
+    warm-up starts (in a background thread: ``/readyz`` answers 503 until it is done)."""
     settings = settings or Settings()
 
     @asynccontextmanager
@@ -36,6 +38,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.store = Store(settings.data_dir, settings.tree_cache)
         app.state.scenes = LiveScenes(app.state.store, settings.engine_threads)
         app.state.banks = BankCache(app.state.store)
+        app.state.builds = BuildJobs(
+            app.state.store,
+            settings.build_concurrency,
+            metrics,
+            settings.job_retention,
+            settings.engine_threads,
+        )
+        app.state.builds.start()
         if settings.warmup:
             threading.Thread(target=_warm, args=(app.state,), name="warmup", daemon=True).start()
         else:
@@ -43,6 +53,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            app.state.builds.close()
             app.state.store.close()
 
     app = FastAPI(
@@ -58,7 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.warmup_error = None
     app.state.warmup_seconds = None
     install_handlers(app)
-    for module in (health, meshes, contacts, scenes):
+    for module in (health, jobs, meshes, contacts, scenes):  # jobs before /v1/meshes/{id}
         app.include_router(module.router)
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
 

@@ -42,6 +42,18 @@ class Settings(BaseSettings):
     )
     warmup: bool = Field(True, description="compile or load every kernel before /readyz")
     tree_cache: int = Field(256, ge=1, description="surrogate trees kept in memory")
+    build_wait: float = Field(
+        5.0,
+        ge=0.0,
+        le=300.0,
+        description="seconds an upload waits for its tree build before answering 202",
+    )
+    build_concurrency: int = Field(1, ge=1, description="tree builds running at once")
+    job_retention: float = Field(
+        7 * 24 * 3600.0,
+        ge=0.0,
+        description="seconds a finished build job stays readable (0: forever)",
+    )
 
     @field_validator("api_keys", mode="before")
     @classmethod

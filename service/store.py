@@ -1,14 +1,21 @@
 """The embedded store: SQLite for metadata, content-addressed tree files beside it.
 
 Layout under the data directory: ``mrdem.sqlite3`` (WAL, ``synchronous=FULL``: a committed
-row survives ``kill -9`` and power loss) and ``trees/<id>.npz``. A tree file is written
-before the row that refers to it — to a temporary file, fsynced, renamed into place, the
-directory fsynced — so an acknowledged mesh always has its tree, and a crash leaves at
-most an unreferenced file (reused by the next upload of the same content, or removed with
-leftover temporaries at start-up). Meshes belong to an owner (the API key's digest; "" when
-the service runs without keys); a tree file is shared by every owner of the same content
-and kept while a mesh or a scene refers to it. A scene's row holds its specification and
-its latest state, replaced in one transaction per acknowledged step.
+row survives ``kill -9`` and power loss), ``trees/<id>.npz`` and ``jobs/<job>.npz``. A
+file is written before the row that refers to it — to a temporary file, fsynced, renamed
+into place, the directory fsynced — so an acknowledged mesh always has its tree and an
+acknowledged build job its mesh, and a crash leaves at most an unreferenced file (a tree
+is reused by the next upload of the same content; temporaries and job files without a
+live job are removed at start-up). Meshes belong to an owner (the API key's digest; ""
+when the service runs without keys); a tree file is shared by every owner of the same
+content and kept while a mesh, a scene or an unfinished build job refers to it. A scene's
+row holds its specification and its latest state, replaced in one transaction per
+acknowledged step.
+
+Build jobs (:mod:`service.builds`): a row per build of one content (``queued``,
+``building``, ``done`` or ``failed``) with the uploaders waiting for it in
+``job_owners`` (each with the facts of its own upload). Finishing a job writes the tree
+file, then marks the job done and adds every waiting owner's mesh row in one transaction.
 """
 
 from __future__ import annotations
@@ -21,7 +28,10 @@ import threading
 import time
 import uuid
 from collections import OrderedDict
+from contextlib import contextmanager
 from pathlib import Path
+
+import numpy as np
 
 from engine import SurrogateTree
 
@@ -50,7 +60,30 @@ CREATE TABLE IF NOT EXISTS scene_trees (
     tree  TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS scene_trees_tree ON scene_trees (tree);
+CREATE TABLE IF NOT EXISTS jobs (
+    id      TEXT PRIMARY KEY,
+    mesh    TEXT NOT NULL,
+    status  TEXT NOT NULL,
+    spec    TEXT NOT NULL,
+    levels  INTEGER NOT NULL DEFAULT 0,
+    nodes   INTEGER NOT NULL DEFAULT 0,
+    seconds REAL,
+    cause   TEXT,
+    error   TEXT,
+    created REAL NOT NULL,
+    updated REAL NOT NULL
+);
+CREATE INDEX IF NOT EXISTS jobs_mesh ON jobs (mesh, status);
+CREATE TABLE IF NOT EXISTS job_owners (
+    job   TEXT NOT NULL,
+    owner TEXT NOT NULL,
+    extra TEXT NOT NULL,
+    PRIMARY KEY (job, owner)
+);
 """
+
+ACTIVE = ("queued", "building")
+_JOB_COLUMNS = "id, mesh, status, spec, levels, nodes, seconds, cause, error, created, updated"
 
 
 class Store:
@@ -65,9 +98,11 @@ class Store:
     def __init__(self, data_dir: str | os.PathLike, tree_cache: int = 256) -> None:
         self.root = Path(data_dir)
         self.trees_dir = self.root / "trees"
-        self.trees_dir.mkdir(parents=True, exist_ok=True)
-        for stale in self.trees_dir.glob(".*.tmp"):
-            stale.unlink(missing_ok=True)
+        self.jobs_dir = self.root / "jobs"
+        for folder in (self.trees_dir, self.jobs_dir):
+            folder.mkdir(parents=True, exist_ok=True)
+            for stale in folder.glob(".*.tmp"):  # half-written by a crash
+                stale.unlink(missing_ok=True)
         self.db = sqlite3.connect(
             self.root / "mrdem.sqlite3", check_same_thread=False, isolation_level=None
         )
@@ -98,16 +133,7 @@ class Store:
             return
         buffer = io.BytesIO()
         tree.save(buffer)
-        tmp = self.trees_dir / f".{tree_id}.{uuid.uuid4().hex}.tmp"
-        try:
-            with open(tmp, "wb") as f:
-                f.write(buffer.getvalue())
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
-        _fsync_dir(self.trees_dir)
+        _write_durably(path, buffer.getvalue())
         self._remember(tree_id, tree)
 
     def tree(self, tree_id: str) -> SurrogateTree:
@@ -163,12 +189,13 @@ class Store:
         return True
 
     def _drop_unused(self, tree_ids) -> None:
-        """Remove the tree files no mesh and no scene refers to (lock held)."""
+        """Remove the tree files no mesh, scene or unfinished job refers to (lock held)."""
         for tree_id in set(tree_ids):
             used = self.db.execute(
                 "SELECT 1 FROM meshes WHERE id = ? UNION ALL"
-                " SELECT 1 FROM scene_trees WHERE tree = ? LIMIT 1",
-                (tree_id, tree_id),
+                " SELECT 1 FROM scene_trees WHERE tree = ? UNION ALL"
+                " SELECT 1 FROM jobs WHERE mesh = ? AND status IN (?, ?) LIMIT 1",
+                (tree_id, tree_id, tree_id, *ACTIVE),
             ).fetchone()
             if used is None:
                 self._cache.pop(tree_id, None)
@@ -230,6 +257,204 @@ class Store:
             )
             self._drop_unused(trees)
         return True
+
+    # ------------------------------------------------------------------- jobs
+    def job_path(self, job_id: str) -> Path:
+        return self.jobs_dir / f"{job_id}.npz"
+
+    def put_job_mesh(self, job_id: str, vertices: np.ndarray, faces: np.ndarray) -> None:
+        """Write a job's mesh (``vertices (V, 3) float64``, ``faces (F, 3) int32``) durably."""
+        buffer = io.BytesIO()
+        np.savez(buffer, vertices=vertices, faces=faces)
+        _write_durably(self.job_path(job_id), buffer.getvalue())
+
+    def job_mesh(self, job_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """The job's ``(vertices (V, 3) float64, faces (F, 3) int32)``; OSError or
+        ValueError when its file is missing or unreadable."""
+        with np.load(self.job_path(job_id), allow_pickle=False) as data:
+            return np.array(data["vertices"]), np.array(data["faces"])
+
+    def drop_job_mesh(self, job_id: str) -> None:
+        self.job_path(job_id).unlink(missing_ok=True)
+
+    def active_job(self, mesh_id: str) -> str | None:
+        """The id of the unfinished job building ``mesh_id``, or None."""
+        with self.lock:
+            row = self.db.execute(
+                "SELECT id FROM jobs WHERE mesh = ? AND status IN (?, ?)", (mesh_id, *ACTIVE)
+            ).fetchone()
+        return None if row is None else row[0]
+
+    def add_job(self, job_id: str, mesh_id: str, spec: dict, owner: str, extra: dict) -> None:
+        """Record a queued job and its first owner (its mesh file is written already)."""
+        now = time.time()
+        with self.lock, self._transaction():
+            self.db.execute(
+                f"INSERT INTO jobs ({_JOB_COLUMNS}) VALUES (?, ?, 'queued', ?, 0, 0, NULL,"
+                " NULL, NULL, ?, ?)",
+                (job_id, mesh_id, json.dumps(spec), now, now),
+            )
+            self.db.execute(
+                "INSERT INTO job_owners (job, owner, extra) VALUES (?, ?, ?)",
+                (job_id, owner, json.dumps(extra)),
+            )
+
+    def join_job(self, job_id: str, owner: str, extra: dict) -> bool | None:
+        """Add ``owner`` to the unfinished job: True if added, False if it was an owner
+        already, None if the job is no longer unfinished."""
+        with self.lock, self._transaction():
+            row = self.db.execute("SELECT status FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            if row is None or row[0] not in ACTIVE:
+                return None
+            cursor = self.db.execute(
+                "INSERT OR IGNORE INTO job_owners (job, owner, extra) VALUES (?, ?, ?)",
+                (job_id, owner, json.dumps(extra)),
+            )
+            return cursor.rowcount == 1
+
+    def job(self, job_id: str, owner: str | None = None) -> dict | None:
+        """The job's row as a dict (``spec`` decoded); with ``owner``, only if that owner
+        waits for it, and with its ``extra`` (the facts of that owner's upload)."""
+        with self.lock:
+            row = self.db.execute(
+                f"SELECT {_JOB_COLUMNS} FROM jobs WHERE id = ?", (job_id,)
+            ).fetchone()
+            extra = None
+            if row is not None and owner is not None:
+                extra = self.db.execute(
+                    "SELECT extra FROM job_owners WHERE job = ? AND owner = ?", (job_id, owner)
+                ).fetchone()
+                if extra is None:
+                    return None
+        if row is None:
+            return None
+        job = _job_row(row)
+        if extra is not None:
+            job["extra"] = json.loads(extra[0])
+        return job
+
+    def jobs(self, owner: str | None = None, statuses=None) -> list[dict]:
+        """Jobs (oldest first): those ``owner`` waits for (None: all), of ``statuses``."""
+        query = f"SELECT {_JOB_COLUMNS} FROM jobs"
+        args: list = []
+        where = []
+        if owner is not None:
+            where.append("id IN (SELECT job FROM job_owners WHERE owner = ?)")
+            args.append(owner)
+        if statuses:
+            where.append(f"status IN ({', '.join('?' * len(statuses))})")
+            args.extend(statuses)
+        if where:
+            query += " WHERE " + " AND ".join(where)
+        with self.lock:
+            rows = self.db.execute(query + " ORDER BY created, id", args).fetchall()
+        return [_job_row(r) for r in rows]
+
+    def owners(self, job_id: str) -> int:
+        """How many owners wait for the job."""
+        with self.lock:
+            return self.db.execute(
+                "SELECT COUNT(*) FROM job_owners WHERE job = ?", (job_id,)
+            ).fetchone()[0]
+
+    def set_job(self, job_id: str, status: str, **columns) -> None:
+        """Set the job's status and any of ``levels``, ``nodes``, ``seconds``, ``cause``,
+        ``error``."""
+        sets = ", ".join(f"{k} = ?" for k in columns)
+        with self.lock:
+            self.db.execute(
+                f"UPDATE jobs SET status = ?, updated = ?{', ' + sets if sets else ''}"
+                " WHERE id = ?",
+                (status, time.time(), *columns.values(), job_id),
+            )
+
+    def finish_job(self, job_id: str, facts: dict, levels: int, nodes: int, seconds: float):
+        """In one transaction: the job done and a mesh row (``facts`` plus the owner's
+        ``extra``) for every owner waiting for it. Returns those owners; with none left,
+        the job is marked failed (cancelled) and its unused tree file removed."""
+        with self.lock, self._transaction():
+            rows = self.db.execute(
+                "SELECT owner, extra FROM job_owners WHERE job = ?", (job_id,)
+            ).fetchall()
+            mesh_id, now = facts["id"], time.time()
+            if not rows:
+                self.db.execute(
+                    "UPDATE jobs SET status = 'failed', cause = 'cancelled', error = ?,"
+                    " updated = ? WHERE id = ?",
+                    (CANCELLED, now, job_id),
+                )
+                self._drop_unused([mesh_id])
+                return []
+            self.db.executemany(
+                "INSERT OR IGNORE INTO meshes (owner, id, facts, created) VALUES (?, ?, ?, ?)",
+                [(o, mesh_id, json.dumps({**facts, **json.loads(e)}), now) for o, e in rows],
+            )
+            self.db.execute(
+                "UPDATE jobs SET status = 'done', levels = ?, nodes = ?, seconds = ?,"
+                " updated = ? WHERE id = ?",
+                (levels, nodes, seconds, now, job_id),
+            )
+        return [o for o, _ in rows]
+
+    def leave_job(self, owner: str, mesh_id: str) -> tuple[str, int] | None:
+        """Take ``owner`` off the unfinished job building ``mesh_id``: ``(job id, owners
+        left)``, or None when the owner waits for no such job."""
+        with self.lock, self._transaction():
+            row = self.db.execute(
+                "SELECT id FROM jobs WHERE mesh = ? AND status IN (?, ?)"
+                " AND id IN (SELECT job FROM job_owners WHERE owner = ?)",
+                (mesh_id, *ACTIVE, owner),
+            ).fetchone()
+            if row is None:
+                return None
+            self.db.execute("DELETE FROM job_owners WHERE job = ? AND owner = ?", (row[0], owner))
+            left = self.db.execute(
+                "SELECT COUNT(*) FROM job_owners WHERE job = ?", (row[0],)
+            ).fetchone()[0]
+        return row[0], left
+
+    def prune_jobs(self, before: float) -> int:
+        """Forget finished jobs last updated before ``before`` (epoch seconds)."""
+        with self.lock, self._transaction():
+            old = "SELECT id FROM jobs WHERE status IN ('done', 'failed') AND updated < ?"
+            self.db.execute(f"DELETE FROM job_owners WHERE job IN ({old})", (before,))
+            return self.db.execute(
+                "DELETE FROM jobs WHERE status IN ('done', 'failed') AND updated < ?", (before,)
+            ).rowcount
+
+    @contextmanager
+    def _transaction(self):
+        """``BEGIN IMMEDIATE`` … ``COMMIT`` (rolled back on any error; lock held)."""
+        self.db.execute("BEGIN IMMEDIATE")
+        try:
+            yield
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+        self.db.execute("COMMIT")
+
+
+CANCELLED = "cancelled: every uploader deleted the mesh before its tree was built"
+
+
+def _job_row(row) -> dict:
+    job = dict(zip(_JOB_COLUMNS.split(", "), row, strict=True))
+    job["spec"] = json.loads(job["spec"])
+    return job
+
+
+def _write_durably(path: Path, data: bytes) -> None:
+    """``data`` into ``path``: a temporary file, fsynced, renamed, the directory fsynced."""
+    tmp = path.parent / f".{path.stem}.{uuid.uuid4().hex}.tmp"
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    _fsync_dir(path.parent)
 
 
 def _fsync_dir(path: Path) -> None:

@@ -120,3 +120,19 @@ def assert_problem(response: httpx.Response, status: int, detail: str = "") -> d
 
 def as_array(values) -> np.ndarray:
     return np.asarray(values, dtype=float)
+
+
+def poll_job(client: httpx.Client, location: str, timeout: float = 120.0) -> dict:
+    """GET a build job until it is ``done`` or ``failed``; every status seen, in order, is
+    in the returned job's ``seen`` list of ``(status, levels, nodes)``."""
+    seen = []
+    deadline = time.monotonic() + timeout
+    while True:
+        response = client.get(location)
+        assert response.status_code == 200, response.text
+        job = response.json()
+        seen.append((job["status"], job["progress"]["levels"], job["progress"]["nodes"]))
+        if job["status"] in ("done", "failed"):
+            return {**job, "seen": seen}
+        assert time.monotonic() < deadline, f"job not finished in {timeout} s: {job}"
+        time.sleep(0.02)

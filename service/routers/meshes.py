@@ -1,9 +1,17 @@
 """``/v1/meshes``: upload (a file or vertices and faces), list, inspect, delete, and the
-surrogate triangles of one tree level."""
+surrogate triangles of one tree level.
+
+An upload is repaired unless ``strict`` (duplicate vertices merged, faces with a repeated
+index or zero area dropped, unreferenced vertices dropped; ``repair`` in the answer says
+what changed). Its id is the content id of the repaired mesh, ε, branching and the tree
+format. A tree already stored is reused (201, or 200 when this owner has the mesh);
+otherwise the upload becomes a build job (:mod:`service.builds`) and waits up to
+``MRDEM_BUILD_WAIT`` seconds: 201/200 with the facts if the build finished, a problem if
+it failed, else **202** with ``Location: /v1/meshes/jobs/{job}`` and the job's status.
+"""
 
 from __future__ import annotations
 
-import hashlib
 import io
 from pathlib import PurePath
 
@@ -11,67 +19,100 @@ import numpy as np
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
-from engine import Mesh, build_tree, load_mesh
-from engine.scene import DEFAULT_RELATIVE_EPSILON
-from engine.tree import TREE_FORMAT
+from engine import InvalidMeshError, Mesh, load_mesh
+from engine.halos import size_epsilon
 
 from ..auth import owner_of
+from ..builds import content_id, mesh_facts
 from ..codecs import decode, respond
-from ..errors import BadRequest, NotFound, ServiceError, Unprocessable
-from ..inputs import array, field, number
+from ..errors import BadRequest, Conflict, NotFound, ServiceError, Unprocessable
+from ..inputs import array, field, flag, number
+from ..store import ACTIVE
+from .jobs import POLL_AFTER, job_location, job_view
 
 router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
 
 FILE_TYPES = ("stl", "obj", "ply", "off", "glb", "gltf")
 MAX_BRANCHING = 64
+STRICT_ADVICE = "send strict=false (the default) to have them repaired"
 
 
 @router.post("")
 async def upload_mesh(request: Request, owner: str = Depends(owner_of)):
     """A mesh file as multipart ``file`` (STL, OBJ, PLY, OFF, GLB; optional form fields
-    ``epsilon``, ``branching``), or a JSON/msgpack body ``{vertices (V, 3), faces (F, 3),
-    epsilon?, branching?}``. Builds and stores the surrogate tree; 201 the first time,
-    200 when this owner has the same mesh with the same parameters."""
+    ``epsilon``, ``branching``, ``strict``, ``file_type``), or a JSON/msgpack body
+    ``{vertices (V, 3), faces (F, 3), epsilon?, branching?, strict?}``. 201 with the facts
+    (200 when this owner has the mesh already) once its tree is stored; 202 with
+    ``Location`` of the build job when the build takes longer than ``MRDEM_BUILD_WAIT``."""
     state = request.app.state
     media = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if media == "multipart/form-data":
-        vertices, faces, options = await _from_form(request)
+        data, file_type, options = await _from_form(request)
+        mesh = await state.engine.run(
+            "load_mesh", _repaired, load_mesh, io.BytesIO(data), file_type, options["strict"]
+        )
     else:
         body = decode(await request.body(), media)
         vertices = array(field(body, "vertices"), "vertices", (None, 3))
         faces = array(field(body, "faces"), "faces", (None, 3), integer=True)
         options = {k: body[k] for k in ("epsilon", "branching") if k in body}
+        options["strict"] = flag(body.get("strict", False), "strict")
+        _check_faces(vertices, faces, state.settings.max_triangles)
+        mesh = await state.engine.run("repair", _repaired, Mesh, vertices, faces, options["strict"])
     limit = state.settings.max_triangles
-    if len(faces) > limit:
-        raise Unprocessable(f"mesh has {len(faces):,} triangles; this service takes <= {limit:,}")
-    if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
-        bad = int(faces.max() if faces.max() >= len(vertices) else faces.min())
-        raise Unprocessable(
-            f"faces refer to vertex {bad} but there are {len(vertices)} vertices"
-            f" (indices 0 … {len(vertices) - 1})"
-        )
-    mesh = Mesh(vertices, faces.astype(np.int32))
-    epsilon = options.get("epsilon")
-    if epsilon is None:
-        spread = mesh.vertices - mesh.vertices.mean(axis=0)
-        epsilon = DEFAULT_RELATIVE_EPSILON * 2 * float(np.sqrt((spread**2).sum(1).max()))
-    epsilon = number(epsilon, "epsilon", 0.0)
-    if epsilon <= 0:
-        raise Unprocessable("epsilon must be > 0")
-    branching = number(options.get("branching", 8), "branching", 2, MAX_BRANCHING, integer=True)
-    mesh_id = _content_id(mesh, epsilon, branching)
+    if mesh.n_faces > limit:
+        raise Unprocessable(f"mesh has {mesh.n_faces:,} triangles; this service takes <= {limit:,}")
+    epsilon, branching, mesh_id = await state.engine.run("mesh_id", _identify, mesh, options)
+    extra = {"repair": mesh.repair.summary(), "epsilon_given": options.get("epsilon") is not None}
     facts = state.store.mesh(owner, mesh_id)
     if facts is not None:
-        return respond(request, facts, 200)
-    if not state.store.tree_path(mesh_id).exists():
-        tree = await state.engine.run("build_tree", build_tree, mesh, epsilon, branching)
-        await state.engine.run("store_tree", state.store.put_tree, mesh_id, tree)
-        state.metrics.meshes_built.inc()
-    else:
-        tree = await state.engine.run("load_tree", state.store.tree, mesh_id)
-    facts = _facts(mesh_id, mesh, tree, epsilon, branching)
-    created = state.store.add_mesh(owner, mesh_id, facts)
-    return respond(request, facts, 201 if created else 200)
+        return respond(request, {**facts, "repair": extra["repair"]}, 200)
+    if state.store.tree_path(mesh_id).exists():  # built for another owner (or a scene)
+        try:
+            tree = await state.engine.run("load_tree", state.store.tree, mesh_id)
+        except FileNotFoundError:  # its last owner deleted it just now: build it again
+            pass
+        else:
+            facts = await state.engine.run(
+                "mesh_facts", mesh_facts, mesh_id, mesh, tree, epsilon, branching
+            )
+            facts = {**facts, **extra}
+            created = state.store.add_mesh(owner, mesh_id, facts)
+            return respond(
+                request,
+                facts if created else state.store.mesh(owner, mesh_id),
+                201 if created else 200,
+            )
+    spec = {
+        "epsilon": epsilon,
+        "branching": branching,
+        "triangles": mesh.n_faces,
+        "vertices": mesh.n_vertices,
+    }
+    submitted = await state.engine.run(
+        "submit_build", state.builds.submit, owner, mesh, mesh_id, spec, extra
+    )
+    del mesh
+    await state.builds.wait(submitted.job_id, state.settings.build_wait)
+    job = state.store.job(submitted.job_id, owner)
+    if job is None:  # this owner deleted the mesh while its upload waited
+        raise Conflict(f"mesh {mesh_id!r} was deleted while its upload waited for the build")
+    if job["status"] == "done":
+        facts = state.store.mesh(owner, mesh_id)
+        if facts is None:
+            raise Conflict(f"mesh {mesh_id!r} was deleted while its upload waited for the build")
+        return respond(
+            request, {**facts, "repair": extra["repair"]}, 201 if submitted.added else 200
+        )
+    if job["status"] == "failed":
+        raise _failure(job)
+    location = job_location(job["id"])
+    return respond(
+        request,
+        job_view(request, owner, job),
+        202,
+        headers={"Location": location, "Retry-After": POLL_AFTER},
+    )
 
 
 @router.get("")
@@ -86,9 +127,13 @@ async def get_mesh(mesh_id: str, request: Request, owner: str = Depends(owner_of
 
 @router.delete("/{mesh_id}", status_code=204)
 async def delete_mesh(mesh_id: str, request: Request, owner: str = Depends(owner_of)):
-    if not request.app.state.store.delete_mesh(owner, mesh_id):
+    """Forget the mesh; while its tree is still being built, withdraw this owner's upload
+    (the job is then gone for this owner, and stops when nobody else waits for it)."""
+    state = request.app.state
+    if state.store.delete_mesh(owner, mesh_id):
+        state.banks.forget(mesh_id)
+    elif not state.builds.leave(owner, mesh_id):
         raise NotFound(f"no mesh {mesh_id!r}")
-    request.app.state.banks.forget(mesh_id)
     return Response(status_code=204)
 
 
@@ -117,14 +162,24 @@ async def surrogates(
 
 
 def known_mesh(request: Request, owner: str, mesh_id: str) -> dict:
-    """The facts of ``owner``'s mesh, or 404."""
-    facts = request.app.state.store.mesh(owner, mesh_id)
+    """The facts of ``owner``'s mesh, or 404 (which names the build job when the mesh's
+    tree is still being built)."""
+    store = request.app.state.store
+    facts = store.mesh(owner, mesh_id)
     if facts is None:
+        pending = [j for j in store.jobs(owner, ACTIVE) if j["mesh"] == mesh_id]
+        if pending:
+            where = job_location(pending[0]["id"])
+            raise NotFound(
+                f"no mesh {mesh_id!r} yet: its tree is being built (GET {where})", job=where
+            )
         raise NotFound(f"no mesh {mesh_id!r}")
     return facts
 
 
-async def _from_form(request: Request):
+async def _from_form(request: Request) -> tuple[bytes, str, dict]:
+    """The file's bytes, its format and the form's options (``epsilon``, ``branching``,
+    ``strict``)."""
     limit = request.app.state.settings.max_body_bytes
     try:
         form = await request.form(max_files=1, max_fields=8, max_part_size=limit)
@@ -145,38 +200,64 @@ async def _from_form(request: Request):
     data = await upload.read()
     if not data:
         raise Unprocessable(f"the uploaded file {upload.filename!r} is empty")
-    mesh = await request.app.state.engine.run("load_mesh", load_mesh, io.BytesIO(data), file_type)
-    options = {}
+    options: dict = {}
     for name in ("epsilon", "branching"):
         if form.get(name) not in (None, ""):
             try:
                 options[name] = float(form[name]) if name == "epsilon" else int(form[name])
             except ValueError:
                 raise Unprocessable(f"{name} must be a number, got {form[name]!r}") from None
-    return mesh.vertices, mesh.faces.astype(np.int64), options
+    strict = str(form.get("strict") or "false").strip().lower()
+    if strict not in ("true", "false", "1", "0"):
+        raise Unprocessable(f"strict must be true or false, got {form['strict']!r}")
+    options["strict"] = strict in ("true", "1")
+    return data, file_type, options
 
 
-def _content_id(mesh: Mesh, epsilon: float, branching: int) -> str:
-    digest = hashlib.sha256(f"mrdem-tree-{TREE_FORMAT}\0".encode())
-    digest.update(np.ascontiguousarray(mesh.vertices, "<f8").tobytes())
-    digest.update(np.ascontiguousarray(mesh.faces, "<i8").tobytes())
-    digest.update(f"\0{epsilon!r}\0{branching}".encode())
-    return digest.hexdigest()[:32]
+def _check_faces(vertices: np.ndarray, faces: np.ndarray, limit: int) -> None:
+    if len(faces) > limit:
+        raise Unprocessable(f"mesh has {len(faces):,} triangles; this service takes <= {limit:,}")
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+        bad = int(faces.max() if faces.max() >= len(vertices) else faces.min())
+        raise Unprocessable(
+            f"faces refer to vertex {bad} but there are {len(vertices)} vertices"
+            f" (indices 0 … {len(vertices) - 1})"
+        )
 
 
-def _facts(mesh_id: str, mesh: Mesh, tree, epsilon: float, branching: int) -> dict:
-    stats = tree.stats
-    closed = bool(mesh.is_watertight)
-    return {
-        "id": mesh_id,
-        "triangles": int(mesh.n_faces),
-        "vertices": int(mesh.n_vertices),
-        "epsilon": epsilon,
-        "branching": branching,
-        "levels": int(stats.depth) + 1,
-        "nodes": len(tree),
-        "nodes_per_level": list(stats.nodes_per_level),
-        "bounds": mesh.bounds.tolist(),
-        "watertight": closed,
-        "volume": float(mesh.volume) if closed else None,
-    }
+def _repaired(make, *args) -> Mesh:
+    """``make(*args, strict=strict)`` (``Mesh`` or ``load_mesh``; the last argument is
+    ``strict``). A strict mesh that only needs repair gets a 422 whose detail says what
+    and how to have it repaired; one that cannot be used either way gets the reason."""
+    *args, strict = args
+    try:
+        return make(*args, strict=strict)
+    except InvalidMeshError as exc:
+        if not strict:
+            raise
+        for arg in args:  # rewind a stream for the second reading
+            if hasattr(arg, "seek"):
+                arg.seek(0)
+        make(*args, strict=False)  # raises when repair cannot save it either
+        raise Unprocessable(f"{str(exc).rstrip(' .;')}; {STRICT_ADVICE}") from None
+
+
+def _identify(mesh: Mesh, options: dict) -> tuple[float, int, str]:
+    """``(epsilon, branching, mesh id)`` of an upload: ε as given (> 0) or the size
+    default (:func:`engine.halos.size_epsilon`), branching in 2 … 64 (default 8)."""
+    epsilon = options.get("epsilon")
+    epsilon = size_epsilon(mesh) if epsilon is None else number(epsilon, "epsilon", 0.0)
+    if not epsilon > 0:
+        raise Unprocessable(f"epsilon must be > 0, got {epsilon!r}")
+    branching = number(options.get("branching", 8), "branching", 2, MAX_BRANCHING, integer=True)
+    return epsilon, branching, content_id(mesh, epsilon, branching)
+
+
+def _failure(job: dict) -> ServiceError:
+    """The problem answering an upload whose build failed while it waited."""
+    where = job_location(job["id"])
+    detail = f"{job['error']} (job {where})"
+    cls = {"engine": Unprocessable, "memory": Unprocessable, "cancelled": Conflict}.get(
+        job["cause"], ServiceError
+    )
+    return cls(detail, job=where, cause=job["cause"])

@@ -1,10 +1,18 @@
-"""What the service acknowledged survives ``kill -9``; API keys isolate owners."""
+"""What the service acknowledged survives ``kill -9``: meshes, and build jobs (finished
+after a restart, or reported failed with the reason); API keys isolate owners."""
 
 from __future__ import annotations
 
 import httpx
 import pytest
-from harness import ServiceProcess, assert_problem, tetrahedron
+from harness import (
+    ServiceProcess,
+    assert_problem,
+    msgpack_body,
+    poll_job,
+    post_msgpack,
+    tetrahedron,
+)
 
 from engine import shapes
 
@@ -37,6 +45,82 @@ def test_meshes_survive_kill_9_and_restart(tmp_path):
     finally:
         second.stop()
     assert sorted(p.name for p in (data / "trees").iterdir()) == [f"{facts[0]['id']}.npz"]
+
+
+def _accepted(client: httpx.Client, mesh, epsilon: float) -> dict:
+    body = {"vertices": mesh.vertices, "faces": mesh.faces, "epsilon": epsilon}
+    response = post_msgpack(client, "/v1/meshes", body)
+    assert response.status_code == 202, response.text
+    return msgpack_body(response)
+
+
+def _after_restart(data, jobs: dict, lost: dict | None = None) -> None:
+    """Restart on ``data`` with half-written files planted: ``jobs`` finish, ``lost``
+    (whose mesh file is gone) is reported failed, the planted files are removed."""
+    if lost is not None:
+        (data / "jobs" / f"{lost['id']}.npz").unlink()
+    planted = [data / "trees" / ".half.0123.tmp", data / "jobs" / ".half.4567.tmp"]
+    planted.append(data / "jobs" / "0123456789abcdef.npz")  # a file with no job row
+    for path in planted:
+        path.write_bytes(b"partial")
+    second = ServiceProcess(data, build_wait="0").start()
+    try:
+        with httpx.Client(base_url=second.url, timeout=120) as client:
+            for job in jobs.values():
+                done = poll_job(client, job["location"])
+                assert done["status"] == "done", done
+                assert done["facts"]["id"] == job["mesh"]
+                assert done["facts"]["triangles"] == job["triangles"]
+            mesh_id = jobs["big"]["mesh"]
+            pair = {"a": mesh_id, "b": mesh_id, "pose_b": {"position": [1.99, 0, 0]}}
+            found = client.post("/v1/contacts", json={"pairs": [pair]}).json()
+            assert len(found["results"][0]["points"]) > 0  # the rebuilt tree works
+            if lost is not None:
+                failed = client.get(lost["location"]).json()
+                assert failed["status"] == "failed" and failed["cause"] == "lost"
+                assert "upload it again" in failed["error"]
+                assert client.get(f"/v1/meshes/{lost['mesh']}").status_code == 404
+                again = _accepted(client, shapes.icosphere(1, radius=0.5), 0.01)  # a retry
+                assert again["id"] != lost["id"] and again["mesh"] == lost["mesh"]
+                assert poll_job(client, again["location"])["status"] == "done"
+    finally:
+        second.stop()
+    assert not any(path.exists() for path in planted)
+    assert not list((data / "jobs").iterdir())
+
+
+def test_acknowledged_builds_survive_kill_9(tmp_path):
+    """Uploads answered 202 and killed before their builds finish: after a restart they
+    are built from the stored meshes; one whose stored mesh is gone is reported failed."""
+    data = tmp_path / "data"
+    first = ServiceProcess(data, build_wait="0", build_concurrency="1").start()
+    try:
+        with httpx.Client(base_url=first.url, timeout=120) as client:
+            jobs = {
+                "big": _accepted(client, shapes.icosphere(5), 0.002),  # ~1 s to build
+                "queued": _accepted(client, shapes.icosphere(3, radius=0.5), 0.01),
+            }
+            lost = _accepted(client, shapes.icosphere(1, radius=0.5), 0.01)
+            status = client.get(jobs["big"]["location"]).json()["status"]
+            assert status in ("queued", "building")  # acknowledged, not finished
+    finally:
+        first.kill()
+    _after_restart(data, jobs, lost)
+
+
+@pytest.mark.slow
+def test_a_build_killed_midway_finishes_after_restart(tmp_path):
+    """The kill lands while a large build reports progress (levels done)."""
+    data = tmp_path / "data"
+    first = ServiceProcess(data, build_wait="0").start()
+    try:
+        with httpx.Client(base_url=first.url, timeout=120) as client:
+            jobs = {"big": _accepted(client, shapes.icosphere(6), 0.001)}  # 81,920 triangles
+            while (seen := client.get(jobs["big"]["location"]).json())["progress"]["levels"] < 3:
+                assert seen["status"] in ("queued", "building"), seen
+    finally:
+        first.kill()
+    _after_restart(data, jobs)
 
 
 @pytest.fixture(scope="module")

@@ -23,6 +23,8 @@ def test_json_upload_is_content_addressed(http):
     other = http.post("/v1/meshes", json={**tetrahedron(), "epsilon": 0.05})
     assert other.status_code == 201 and other.json()["id"] != facts["id"]
     assert other.json()["epsilon"] == 0.05
+    assert facts["epsilon_given"] is False and other.json()["epsilon_given"] is True
+    assert facts["repair"]["changed"] is False and facts["repair"]["faces"] == 4
     assert http.get(f"/v1/meshes/{facts['id']}").json() == facts
     ids = [m["id"] for m in http.get("/v1/meshes").json()["meshes"]]
     assert facts["id"] in ids and other.json()["id"] in ids
