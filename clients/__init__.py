@@ -2,13 +2,16 @@
 Imports neither engine nor service; speaks msgpack (arrays as typed binary) by default."""
 
 from .aio import AsyncClient, AsyncRemoteScene
-from .errors import ClientError, ProblemError, ServiceUnreachable
-from .models import ContactResult, Contacts, MeshInfo, SceneState
+from .errors import BuildFailed, BuildTimeout, ClientError, ProblemError, ServiceUnreachable
+from .models import BuildJob, ContactResult, Contacts, MeshInfo, SceneState
 from .sync import Client, RemoteScene
 
 __all__ = [
     "AsyncClient",
     "AsyncRemoteScene",
+    "BuildFailed",
+    "BuildJob",
+    "BuildTimeout",
     "Client",
     "ClientError",
     "ContactResult",

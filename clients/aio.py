@@ -4,14 +4,16 @@ awaited."""
 from __future__ import annotations
 
 import asyncio
+import time
+from collections.abc import Callable
 from typing import Any
 
 import httpx
 
 from .base import ClientBase, scene_fields
-from .calls import Call, result, retry_delay
-from .errors import ServiceUnreachable
-from .models import Contacts, MeshInfo, SceneState
+from .calls import Call, build_failure, job_path, poll_delay, result, retry_delay
+from .errors import BuildTimeout, ProblemError, ServiceUnreachable
+from .models import BuildJob, Contacts, MeshInfo, SceneState
 
 __all__ = ["AsyncClient", "AsyncRemoteScene"]
 
@@ -34,7 +36,8 @@ class AsyncClient(ClientBase):
     async def aclose(self) -> None:
         await self._http.aclose()
 
-    async def _send(self, call: Call) -> tuple[Any, int]:
+    async def _exchange(self, call: Call) -> tuple[Any, httpx.Response]:
+        """The decoded answer to ``call`` and the response, after the retries."""
         attempt = 0
         while True:
             try:
@@ -45,13 +48,74 @@ class AsyncClient(ClientBase):
                 await asyncio.sleep(retry_delay(attempt, self.backoff))
             else:
                 if not self._retry(call, attempt, None, response):
-                    return result(response), response.status_code
+                    return result(response), response
                 await asyncio.sleep(retry_delay(attempt, self.backoff, response))
             attempt += 1
 
-    async def upload_mesh(self, source, epsilon=None, branching=None) -> MeshInfo:
-        payload, status = await self._send(self._upload(source, epsilon, branching))
-        return self._mesh(payload, status)
+    async def _send(self, call: Call) -> tuple[Any, int]:
+        payload, response = await self._exchange(call)
+        return payload, response.status_code
+
+    async def upload_mesh(
+        self,
+        source,
+        epsilon: float | None = None,
+        branching: int | None = None,
+        *,
+        strict: bool | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+        progress: Callable[[BuildJob], None] | None = None,
+    ) -> MeshInfo | BuildJob:
+        """:meth:`Client.upload_mesh`, awaited: waits for the tree unless ``wait=False``
+        (polling the build job after a 202), ``BuildTimeout`` past ``timeout`` seconds,
+        ``BuildFailed`` when the build fails; ``progress(job)`` with each job status."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        try:
+            call = self._upload(source, epsilon, branching, strict)
+            payload, response = await self._exchange(call)
+        except ProblemError as error:
+            raise build_failure(error) from error
+        outcome = self._uploaded(payload, response)
+        if isinstance(outcome, MeshInfo) or not wait:
+            return outcome
+        return await self._poll(outcome, deadline, timeout, progress)
+
+    async def job(self, job: BuildJob | str) -> BuildJob:
+        """The current status of a build job (its :class:`BuildJob`, URL or id)."""
+        url = job_path(job)
+        payload, _ = await self._send(Call("GET", url))
+        return BuildJob.from_payload(payload, url)
+
+    async def wait_for_mesh(
+        self,
+        job: BuildJob | str,
+        timeout: float | None = None,
+        progress: Callable[[BuildJob], None] | None = None,
+    ) -> MeshInfo:
+        """:meth:`Client.wait_for_mesh`, awaited."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        if not isinstance(job, BuildJob):
+            job = await self.job(job)
+        return await self._poll(job, deadline, timeout, progress)
+
+    async def _poll(self, job: BuildJob, deadline, timeout, progress) -> MeshInfo:
+        polls = 0
+        while True:
+            if progress is not None:
+                progress(job)
+            mesh = self._settled(job)
+            if mesh is not None:
+                return mesh
+            delay = poll_delay(polls)
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise BuildTimeout(timeout, job.url, job)
+                delay = min(delay, left)
+            await asyncio.sleep(delay)
+            polls += 1
+            job = await self.job(job)
 
     async def meshes(self) -> list[MeshInfo]:
         payload, _ = await self._send(Call("GET", "/v1/meshes"))

@@ -17,8 +17,8 @@ from .calls import (
     upload_call,
 )
 from .codec import JSON, MSGPACK, encode
-from .errors import ClientError
-from .models import STATE, Contacts, MeshInfo, SceneState
+from .errors import BuildFailed, ClientError
+from .models import STATE, BuildJob, Contacts, MeshInfo, SceneState
 
 __all__ = ["ClientBase"]
 
@@ -68,8 +68,8 @@ class ClientBase:
 
     # ---------------------------------------------------------------- calls
     @staticmethod
-    def _upload(source, epsilon, branching) -> Call:
-        return upload_call(source, epsilon, branching)
+    def _upload(source, epsilon, branching, strict=None) -> Call:
+        return upload_call(source, epsilon, branching, strict)
 
     @staticmethod
     def _contacts(pairs, kernel, hierarchy, precision) -> Call:
@@ -101,6 +101,26 @@ class ClientBase:
     @staticmethod
     def _mesh(payload: dict, status: int) -> MeshInfo:
         return MeshInfo.from_payload(payload, created=status == 201)
+
+    @staticmethod
+    def _uploaded(payload: dict, response: httpx.Response) -> MeshInfo | BuildJob:
+        """An upload's answer: the mesh (200, 201) or its unfinished build job (202)."""
+        if response.status_code == 202:
+            return BuildJob.from_payload(payload, response.headers.get("location"))
+        return MeshInfo.from_payload(payload, created=response.status_code == 201)
+
+    @staticmethod
+    def _settled(job: BuildJob) -> MeshInfo | None:
+        """The mesh of a done job, None while it is unfinished; :class:`BuildFailed` for
+        a failed one. A mesh built after a 202 is new to its owner (``created``)."""
+        if job.status == "failed":
+            raise BuildFailed(str(job.error), job.cause, job.url, job)
+        if job.status != "done":
+            return None
+        facts = job.payload.get("facts")
+        if facts is None:
+            raise ClientError(f"mesh {job.mesh} was built but has been deleted since ({job.url})")
+        return MeshInfo.from_payload(facts, created=True)
 
     @staticmethod
     def _found(payload: dict) -> Contacts:

@@ -20,19 +20,25 @@ import httpx
 import numpy as np
 
 from .codec import decode
-from .errors import ProblemError
-from .models import MeshInfo
+from .errors import BuildFailed, ClientError, ProblemError
+from .models import BuildJob, MeshInfo
 
 __all__ = [
     "Call",
+    "build_failure",
     "columnar_call",
     "contacts_call",
+    "job_path",
+    "poll_delay",
     "retry_delay",
     "scene_call",
     "upload_call",
 ]
 
 RETRY_STATUS = (429, 503)
+POLL_FIRST = 0.05  # seconds before the first poll of a build job, doubled up to POLL_MAX
+POLL_MAX = 2.0
+JOBS = "/v1/meshes/jobs"
 NEVER_SENT = (httpx.ConnectError, httpx.ConnectTimeout, httpx.PoolTimeout)
 
 
@@ -50,13 +56,17 @@ def mesh_id(value) -> str:
     return value.id if isinstance(value, MeshInfo) else str(value)
 
 
-def upload_call(source, epsilon: float | None, branching: int | None) -> Call:
+def upload_call(
+    source, epsilon: float | None, branching: int | None, strict: bool | None = None
+) -> Call:
     """``source``: a path to a mesh file, a ``trimesh.Trimesh`` (anything with
-    ``vertices`` and ``faces``) or a ``(vertices, faces)`` pair."""
-    options = {k: v for k, v in (("epsilon", epsilon), ("branching", branching)) if v is not None}
+    ``vertices`` and ``faces``) or a ``(vertices, faces)`` pair. ``None`` options are left
+    to the service's defaults."""
+    given = (("epsilon", epsilon), ("branching", branching), ("strict", strict))
+    options = {k: v for k, v in given if v is not None}
     if isinstance(source, str | os.PathLike):
         path = Path(source)
-        data = {k: str(v) for k, v in options.items()}
+        data = {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in options.items()}
         return Call("POST", "/v1/meshes", files={"file": (path.name, path.read_bytes())}, data=data)
     if hasattr(source, "vertices") and hasattr(source, "faces"):
         vertices, faces = source.vertices, source.faces
@@ -137,6 +147,29 @@ def scene_call(bodies, **fields) -> Call:
         out.append(body)
     payload = {"bodies": out, **{k: v for k, v in fields.items() if v is not None}}
     return Call("POST", "/v1/scenes", payload=payload, repeatable=False)
+
+
+def job_path(job: BuildJob | str) -> str:
+    """The address of a build job: its :class:`BuildJob`, its URL or path, or its id."""
+    if isinstance(job, BuildJob):
+        return job.url
+    job = str(job)
+    return job if "/" in job else f"{JOBS}/{job}"
+
+
+def poll_delay(polls: int) -> float:
+    """Seconds before polling a build job again after ``polls`` polls: 0.05 s, doubled
+    each time, at most 2 s."""
+    return min(POLL_MAX, POLL_FIRST * 2**polls)
+
+
+def build_failure(error: ProblemError) -> ClientError:
+    """An upload's problem as :class:`BuildFailed` when it reports a failed build job
+    (members ``job`` and ``cause``), else the problem itself."""
+    job, cause = error.problem.get("job"), error.problem.get("cause")
+    if not job or not cause:
+        return error
+    return BuildFailed(str(error.detail), str(cause), str(job))
 
 
 def retry_delay(attempt: int, backoff: float, response: httpx.Response | None = None) -> float:

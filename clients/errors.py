@@ -1,8 +1,11 @@
-"""Client errors: the server's RFC 9457 problem, or no answer at all."""
+"""Client errors: the server's RFC 9457 problem, no answer at all, or a tree build that
+failed or outlasted the caller's deadline."""
 
 from __future__ import annotations
 
-__all__ = ["ClientError", "ProblemError", "ServiceUnreachable"]
+from typing import Any
+
+__all__ = ["BuildFailed", "BuildTimeout", "ClientError", "ProblemError", "ServiceUnreachable"]
 
 
 class ClientError(Exception):
@@ -21,3 +24,28 @@ class ProblemError(ClientError):
 
 class ServiceUnreachable(ClientError):
     """No answer after every retry (connection refused, reset or timed out)."""
+
+
+class BuildFailed(ClientError):
+    """The service could not build the uploaded mesh's tree: ``reason`` is its message,
+    ``cause`` its kind ("engine": the mesh cannot be built; "memory"; "cancelled": every
+    uploader deleted it; "lost"; "internal"), ``job_url`` the job. Upload the mesh again
+    to retry."""
+
+    def __init__(self, reason: str, cause: str | None, job_url: str, job: Any = None) -> None:
+        super().__init__(f"the tree build failed ({cause}): {reason} [{job_url}]")
+        self.reason, self.cause, self.job_url, self.job = reason, cause, job_url, job
+
+
+class BuildTimeout(ClientError):
+    """The tree was not built within the caller's ``timeout``; the build goes on: keep
+    polling ``job_url`` (``client.wait_for_mesh(error.job)`` or ``client.job(url)``).
+    ``job`` is the last status seen."""
+
+    def __init__(self, timeout: float, job_url: str, job: Any = None) -> None:
+        status = getattr(job, "status", "unfinished")
+        super().__init__(
+            f"the tree was not built within {timeout:g} s (job {status}); it goes on:"
+            f" poll {job_url}"
+        )
+        self.timeout, self.job_url, self.job = timeout, job_url, job

@@ -6,14 +6,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ContactResult", "Contacts", "MeshInfo", "SceneState"]
+__all__ = ["BuildJob", "ContactResult", "Contacts", "MeshInfo", "SceneState"]
 
 STATE = ("positions", "orientations", "velocities", "angular_velocities")
 
 
 @dataclass(frozen=True)
 class MeshInfo:
-    """An uploaded mesh: ``id`` for scenes and contact queries, and its facts."""
+    """An uploaded mesh: ``id`` for scenes and contact queries, and its facts.
+
+    ``triangles`` and ``vertices`` count the stored (repaired) mesh; ``repair`` is the
+    service's report of what the upload's repair changed (``{"changed": False, …}`` for a
+    clean mesh; counts and the first indices of merged vertices and dropped faces)."""
 
     id: str
     triangles: int
@@ -25,6 +29,7 @@ class MeshInfo:
     volume: float | None
     created: bool  # False when the service had this mesh already
     facts: dict = field(repr=False, default_factory=dict)
+    repair: dict = field(repr=False, default_factory=dict)
 
     @classmethod
     def from_payload(cls, payload: dict, created: bool) -> MeshInfo:
@@ -39,6 +44,50 @@ class MeshInfo:
             volume=payload.get("volume"),
             created=created,
             facts=payload,
+            repair=dict(payload.get("repair") or {}),
+        )
+
+
+@dataclass(frozen=True)
+class BuildJob:
+    """The service's build of an uploaded mesh's tree (``GET /v1/meshes/jobs/{id}``).
+
+    ``status``: "queued", "building", "done" or "failed"; ``levels`` and ``nodes``: tree
+    levels and nodes built so far (of a mesh of ``triangles`` triangles); ``error`` and
+    ``cause`` ("engine", "memory", "cancelled", "lost", "internal") say why a job failed;
+    ``url``: the job's address, to poll with :meth:`clients.Client.job`."""
+
+    id: str
+    status: str
+    mesh: str  # the mesh id it builds
+    url: str
+    triangles: int
+    levels: int
+    nodes: int
+    error: str | None
+    cause: str | None
+    seconds: float | None
+    payload: dict = field(repr=False, default_factory=dict)
+
+    @property
+    def finished(self) -> bool:
+        return self.status in ("done", "failed")
+
+    @classmethod
+    def from_payload(cls, payload: dict, url: str | None = None) -> BuildJob:
+        progress = payload.get("progress") or {}
+        return cls(
+            id=payload["id"],
+            status=payload["status"],
+            mesh=payload["mesh"],
+            url=url or payload["location"],
+            triangles=int(payload["triangles"]),
+            levels=int(progress.get("levels", 0)),
+            nodes=int(progress.get("nodes", 0)),
+            error=payload.get("error"),
+            cause=payload.get("cause"),
+            seconds=payload.get("seconds"),
+            payload=payload,
         )
 
 

@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Literal, overload
 
 import httpx
 
 from .base import ClientBase, scene_fields
-from .calls import Call, result, retry_delay
-from .errors import ServiceUnreachable
-from .models import Contacts, MeshInfo, SceneState
+from .calls import Call, build_failure, job_path, poll_delay, result, retry_delay
+from .errors import BuildTimeout, ProblemError, ServiceUnreachable
+from .models import BuildJob, Contacts, MeshInfo, SceneState
 
 __all__ = ["Client", "RemoteScene"]
 
@@ -37,7 +38,8 @@ class Client(ClientBase):
     def close(self) -> None:
         self._http.close()
 
-    def _send(self, call: Call) -> tuple[Any, int]:
+    def _exchange(self, call: Call) -> tuple[Any, httpx.Response]:
+        """The decoded answer to ``call`` and the response, after the retries."""
         attempt = 0
         while True:
             try:
@@ -48,16 +50,110 @@ class Client(ClientBase):
                 time.sleep(retry_delay(attempt, self.backoff))
             else:
                 if not self._retry(call, attempt, None, response):
-                    return result(response), response.status_code
+                    return result(response), response
                 time.sleep(retry_delay(attempt, self.backoff, response))
             attempt += 1
 
+    def _send(self, call: Call) -> tuple[Any, int]:
+        payload, response = self._exchange(call)
+        return payload, response.status_code
+
     # ------------------------------------------------------------------ API
-    def upload_mesh(self, source, epsilon: float | None = None, branching: int | None = None):
-        """Upload a mesh file path, a ``trimesh.Trimesh`` or ``(vertices, faces)``;
-        returns its :class:`MeshInfo` (``created`` False when the service had it)."""
-        payload, status = self._send(self._upload(source, epsilon, branching))
-        return self._mesh(payload, status)
+    @overload
+    def upload_mesh(
+        self,
+        source,
+        epsilon: float | None = ...,
+        branching: int | None = ...,
+        *,
+        strict: bool | None = ...,
+        wait: Literal[True] = ...,
+        timeout: float | None = ...,
+        progress: Callable[[BuildJob], None] | None = ...,
+    ) -> MeshInfo: ...
+    @overload
+    def upload_mesh(
+        self,
+        source,
+        epsilon: float | None = ...,
+        branching: int | None = ...,
+        *,
+        strict: bool | None = ...,
+        wait: Literal[False],
+        timeout: float | None = ...,
+        progress: Callable[[BuildJob], None] | None = ...,
+    ) -> MeshInfo | BuildJob: ...
+    def upload_mesh(
+        self,
+        source,
+        epsilon: float | None = None,
+        branching: int | None = None,
+        *,
+        strict: bool | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+        progress: Callable[[BuildJob], None] | None = None,
+    ) -> MeshInfo | BuildJob:
+        """Upload a mesh file path, a ``trimesh.Trimesh`` or ``(vertices, faces)`` and
+        wait for its surrogate tree; returns its :class:`MeshInfo` (``created`` False when
+        the service had it; ``repair`` what the service's repair changed).
+
+        ``strict=True``: the service rejects a mesh that needs repair (422,
+        :class:`ProblemError`) instead of repairing it. The service answers 202 when the
+        tree build outlasts its own short wait; then this polls the build job (backing
+        off from 0.05 s to 2 s) until it is done, calling ``progress(job)`` with each
+        :class:`BuildJob` seen. ``timeout``: seconds to wait in all (None: as long as the
+        build takes) — past it, :class:`BuildTimeout` with the job's URL (the build goes
+        on; :meth:`wait_for_mesh` resumes). A failed build raises :class:`BuildFailed`
+        with the service's reason. ``wait=False`` returns the :class:`BuildJob` of a 202
+        at once."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        try:
+            payload, response = self._exchange(self._upload(source, epsilon, branching, strict))
+        except ProblemError as error:
+            raise build_failure(error) from error
+        outcome = self._uploaded(payload, response)
+        if isinstance(outcome, MeshInfo) or not wait:
+            return outcome
+        return self._poll(outcome, deadline, timeout, progress)
+
+    def job(self, job: BuildJob | str) -> BuildJob:
+        """The current status of a build job (its :class:`BuildJob`, URL or id)."""
+        url = job_path(job)
+        payload, _ = self._send(Call("GET", url))
+        return BuildJob.from_payload(payload, url)
+
+    def wait_for_mesh(
+        self,
+        job: BuildJob | str,
+        timeout: float | None = None,
+        progress: Callable[[BuildJob], None] | None = None,
+    ) -> MeshInfo:
+        """Poll a build job (its :class:`BuildJob`, URL or id) until its mesh is ready, as
+        :meth:`upload_mesh` does; ``timeout`` seconds at most (None: no limit), then
+        :class:`BuildTimeout`."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        if not isinstance(job, BuildJob):
+            job = self.job(job)
+        return self._poll(job, deadline, timeout, progress)
+
+    def _poll(self, job: BuildJob, deadline, timeout, progress) -> MeshInfo:
+        polls = 0
+        while True:
+            if progress is not None:
+                progress(job)
+            mesh = self._settled(job)
+            if mesh is not None:
+                return mesh
+            delay = poll_delay(polls)
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise BuildTimeout(timeout, job.url, job)
+                delay = min(delay, left)
+            time.sleep(delay)
+            polls += 1
+            job = self.job(job)
 
     def mesh(self, mesh: MeshInfo | str) -> MeshInfo:
         """The facts of one uploaded mesh (by :class:`MeshInfo` or id)."""

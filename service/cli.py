@@ -1,6 +1,6 @@
-"""``mrdem`` command line: ``serve``, ``demo`` (the client program ``clients.demo``, run as
-a separate process), ``bench`` (the benchmark scripts); ``info`` and ``warmup`` from the
-engine."""
+"""``mrdem`` command line: ``serve``, ``demo`` and ``upload`` (the client programs
+``clients.demo`` and ``clients.upload``, run as separate processes), ``bench`` (the
+benchmark scripts); ``info`` and ``warmup`` from the engine."""
 
 from __future__ import annotations
 
@@ -93,12 +93,17 @@ def main(argv: list[str] | None = None) -> int:
         help="particle on a plane through the client: CSV, PNG and VTK (see --help)",
         add_help=False,
     )
+    sub.add_parser(
+        "upload",
+        help="upload mesh files to a service and wait for their trees, with progress",
+        add_help=False,
+    )
     marks = sub.add_parser("bench", help="run the benchmarks (source checkout) with progress")
     marks.add_argument("names", nargs="*", help=f"any of {', '.join(BENCHMARKS)} (all)")
     marks.add_argument("--quick", action="store_true", help="shorter runs where supported")
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["demo"]:  # a client program of its own: service never imports clients
-        return subprocess.call([sys.executable, "-m", "clients.demo", *argv[1:]])
+    if argv[:1] in (["demo"], ["upload"]):  # client programs: service never imports clients
+        return subprocess.call([sys.executable, "-m", f"clients.{argv[0]}", *argv[1:]])
     args = parser.parse_args(argv)
     if args.command in ("info", "warmup"):
         return engine_cli.main([args.command])

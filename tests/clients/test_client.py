@@ -102,8 +102,21 @@ def test_a_remote_scene_loop(service, wire):
 def test_problems_carry_the_server_detail(client):
     with pytest.raises(ProblemError) as error:
         client.upload_mesh(([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]]))
-    assert error.value.status == 422 and "zero area" in error.value.detail
+    assert error.value.status == 422 and "no face is left" in error.value.detail
     assert error.value.problem["instance"] == "/v1/meshes"
+
+
+def test_repair_is_reported_and_strict_rejects(client):
+    mesh = shapes.icosphere(1, radius=0.5)
+    faces = np.vstack([mesh.faces, [[0, 0, 1]]])  # a face that repeats a vertex index
+    info = client.upload_mesh((mesh.vertices, faces), epsilon=0.02)
+    assert info.repair["changed"] and info.repair["repeated_index_faces_first"] == [80]
+    assert info.triangles == 80 and info.watertight
+    clean = client.upload_mesh((mesh.vertices, mesh.faces), epsilon=0.02, strict=True)
+    assert clean.id == info.id and clean.repair["changed"] is False
+    with pytest.raises(ProblemError) as error:
+        client.upload_mesh((mesh.vertices, faces), epsilon=0.02, strict=True)
+    assert error.value.status == 422 and "strict=false" in error.value.detail
 
 
 def test_the_async_client(service):

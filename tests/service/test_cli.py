@@ -1,8 +1,10 @@
-"""``mrdem bench``: each script's output in a log, failures counted."""
+"""``mrdem bench``: each script's output in a log, failures counted; ``mrdem upload``."""
 
 from __future__ import annotations
 
-from service.cli import bench
+import trimesh
+
+from service.cli import bench, main
 
 
 def test_bench_runs_each_script_and_counts_failures(tmp_path, capsys):
@@ -14,3 +16,16 @@ def test_bench_runs_each_script_and_counts_failures(tmp_path, capsys):
     assert "table ['--quick']" in (tmp_path / "bench-results" / "kernels.log").read_text()
     out = capsys.readouterr().out
     assert "kernels: ok" in out and "trees: FAILED (3)" in out and "1/2 benchmarks" in out
+
+
+def test_upload_runs_the_client_program(service, tmp_path, capfd):
+    """``mrdem upload`` is the client's program in its own process (service never imports
+    clients): it uploads, waits and prints the mesh."""
+    path = tmp_path / "box.obj"
+    trimesh.creation.box(extents=(1.0, 2.0, 0.5)).export(path)
+    assert main(["upload", str(path), "--url", service.url, "--epsilon", "0.01"]) == 0
+    out = capfd.readouterr().out
+    assert "box.obj: " in out and "12 triangles" in out and "watertight" in out
+    missing = tmp_path / "missing.stl"
+    assert main(["upload", str(missing), "--url", service.url]) == 1
+    assert "missing.stl" in capfd.readouterr().out
