@@ -165,3 +165,21 @@ def test_a_failed_build_says_why_and_uploading_again_retries(tmp_path):
             assert http.get(problem["job"]).json()["status"] == "failed"  # history kept
     finally:
         process.stop()
+
+
+def test_a_client_that_disconnects_does_not_cancel_its_build(service):
+    """The upload's request gives up (client timeout) while the service waits for the
+    build; the build goes on and its job is found and finishes."""
+    mesh = shapes.icosphere(6)  # 81,920 triangles: seconds to build, the client waits 0.5
+    impatient = httpx.Client(base_url=service.url, timeout=0.5)
+    with impatient, pytest.raises(httpx.ReadTimeout):
+        post_msgpack(impatient, "/v1/meshes", _body(mesh, 0.0031))
+    with httpx.Client(base_url=service.url, timeout=60) as http:
+        jobs = [
+            j
+            for j in http.get("/v1/meshes/jobs").json()["jobs"]
+            if j["epsilon"] == 0.0031 and j["triangles"] == 81920
+        ]
+        assert len(jobs) == 1
+        done = poll_job(http, jobs[0]["location"])
+        assert done["status"] == "done" and done["facts"]["triangles"] == 81920
