@@ -114,7 +114,9 @@ def shifted_tree(tree: SurrogateTree, leaf_epsilon: float) -> SurrogateTree:
     leaf_epsilon = float(leaf_epsilon)
     if leaf_epsilon == tree.leaf_epsilon:
         return tree
-    geometric = np.maximum(tree.epsilon - tree.leaf_epsilon, 0.0)
+    # ε_node − ε_leaf loses up to half an ulp of the old ε: add a whole one back, then
+    # round the sum up too, so that no node is less conservative than a direct build's
+    geometric = np.maximum(tree.epsilon - tree.leaf_epsilon + np.spacing(tree.epsilon), 0.0)
     epsilon = np.where(
         tree.face >= 0, leaf_epsilon, (geometric + leaf_epsilon) * (1 + 8 * np.finfo(float).eps)
     )

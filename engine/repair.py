@@ -50,6 +50,7 @@ __all__ = [
 DEFAULT_MERGE_TOLERANCE = 2.0**-21  # times the diameter D: four float32 steps at |x| = D
 DEFAULT_AREA_TOLERANCE = 1e-12  # times D**2
 _MAX_LISTED = 5  # offending indices quoted in an error message
+_COORDINATE_LIMIT = 1e100  # |x|: squared differences and diameters stay finite (1e308)
 
 
 def readonly(a: np.ndarray) -> np.ndarray:
@@ -79,7 +80,7 @@ def as_vertices(vertices: Any) -> np.ndarray:
     if v.shape[0] == 0:
         raise InvalidMeshError("mesh has no vertices")
     v = v.astype(np.float64)
-    if np.isfinite(v).all():  # fast path: a whole-array reduction
+    if np.isfinite(v).all() and float(np.abs(v).max()) <= _COORDINATE_LIMIT:  # fast path
         return v
     bad = np.flatnonzero(~np.isfinite(v).all(axis=1))
     if bad.size:
@@ -87,7 +88,12 @@ def as_vertices(vertices: Any) -> np.ndarray:
             f"vertex {int(bad[0])} has a non-finite coordinate {v[bad[0]].tolist()} "
             f"({bad.size} non-finite vertex/vertices in total)"
         )
-    return v
+    far = np.flatnonzero((np.abs(v) > _COORDINATE_LIMIT).any(axis=1))
+    raise InvalidMeshError(
+        f"vertex {int(far[0])} has a coordinate beyond ±{_COORDINATE_LIMIT:.3g} "
+        f"({v[far[0]].tolist()}; {far.size} such vertex/vertices): squared distances would "
+        "overflow; scale the mesh to other units"
+    )
 
 
 def as_faces(faces: Any, n_vertices: int) -> np.ndarray:
@@ -298,7 +304,8 @@ def _weld(points: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
     head = np.full(1 << (2 * n - 1).bit_length(), -1, dtype=np.int64)  # >= 2n slots
     link = np.empty(n, dtype=np.int64)
     rep = np.empty(n, dtype=np.int64)
-    count = weld_kernel(points, tol, cell, lo - cell, head, link, rep)
+    salt = int(np.random.default_rng().integers(0, 2**62))  # table layout only
+    count = weld_kernel(points, tol, cell, lo - cell, head, link, rep, salt)
     return rep, int(count)
 
 
@@ -324,13 +331,28 @@ def merge_equal(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     identity = np.arange(n, dtype=np.int64)
     if n == 0 or not np.isfinite(points).all():
         return identity, identity
-    rep, count = _weld(np.ascontiguousarray(points, dtype=np.float64), 0.0)
-    if count == n:
-        return identity, identity
+    rep = _equal_representatives(np.asarray(points, dtype=np.float64))
     first = np.flatnonzero(rep == identity)
+    if first.size == n:
+        return identity, identity
     index = np.empty(n, dtype=np.int64)
-    index[first] = np.arange(count)
+    index[first] = np.arange(first.size)
     return first, index[rep]
+
+
+def _equal_representatives(points: np.ndarray) -> np.ndarray:
+    """``rep (n,) int64``: the first index whose coordinates equal point ``i``'s (``-0.0 ==
+    0.0``). A stable lexicographic sort, O(n log n) whatever the input: a hashed grid with
+    no tolerance lets an upload crowd any number of distinct points into one cell."""
+    p = points + 0.0  # -0.0 becomes 0.0
+    order = np.lexsort((p[:, 2], p[:, 1], p[:, 0]))  # stable: a run starts at its first index
+    sorted_points = p[order]
+    starts = np.ones(len(p), dtype=bool)
+    starts[1:] = (sorted_points[1:] != sorted_points[:-1]).any(axis=1)
+    run_first = order[starts]
+    rep = np.empty(len(p), dtype=np.int64)
+    rep[order] = run_first[np.cumsum(starts) - 1]
+    return rep
 
 
 def repair_arrays(
@@ -360,7 +382,11 @@ def repair_arrays(
 
     g = f
     if members.size:
-        rep_local, count = _weld(points, merge_tol)
+        if merge_tol > 0:
+            rep_local, count = _weld(points, merge_tol)
+        else:  # exact duplicates only
+            rep_local = _equal_representatives(points)
+            count = int(np.count_nonzero(rep_local == np.arange(members.size)))
         if count < members.size:
             rep = np.arange(n_v, dtype=np.int32)
             rep[members] = members[rep_local]

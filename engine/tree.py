@@ -234,6 +234,8 @@ def build_tree(
         raise InvalidArgumentError(f"epsilon must be finite and non-negative, got {epsilon!r}")
     if isinstance(branching, bool) or not isinstance(branching, int | np.integer) or branching < 2:
         raise InvalidArgumentError(f"branching must be an integer >= 2, got {branching!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**53:
+        raise InvalidArgumentError(f"seed must be an integer in [0, 2**53), got {seed!r}")
     params = resolve_fit(fit)
     threads = _threads(threads)
     tris = mesh.triangles
@@ -246,7 +248,7 @@ def build_tree(
 
 def _threads(threads: int | None) -> int:
     if threads is None:
-        return max(1, min(os.cpu_count() or 1, _MAX_THREADS))
+        return max(1, min(len(os.sched_getaffinity(0)), _MAX_THREADS))
     if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or threads < 1:
         raise InvalidArgumentError(f"threads must be an integer >= 1, got {threads!r}")
     return int(threads)

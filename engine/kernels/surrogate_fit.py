@@ -277,9 +277,9 @@ def objective_sampled(
             for i in range(m):
                 h0, h1, h2 = x[k, 0] - points[i, 0], x[k, 1] - points[i, 1], x[k, 2] - points[i, 2]
                 h = h0 * n0 + h1 * n1 + h2 * n2
-                if h > 0.0:
-                    value += alpha_inside / (beta_normal * m) * h**beta_normal
-                    g = alpha_inside / m * h ** (beta_normal - 1.0)
+                if h > 0.0:  # a weighted mean over the group, like the soft maxima
+                    value += alpha_inside * w_points[i] / (beta_normal * n_points) * h**beta_normal
+                    g = alpha_inside * w_points[i] / n_points * h ** (beta_normal - 1.0)
                     grad[k, 0] += g * n0
                     grad[k, 1] += g * n1
                     grad[k, 2] += g * n2

@@ -13,12 +13,13 @@ Randomness comes from a counter-based generator (SplitMix64) keyed on the seed a
 node's index in the finished tree, so a tree depends on its inputs and seed only, never
 on how the level's nodes were split between threads.
 
-Groups larger than ``sample`` covered vertices (or ``3 · sample`` vertex–triangle pairs)
-are fitted on an active set: the ``sample`` covered vertices farthest from the current
-triangle and the ``3 · sample`` farthest pairs of the functional's second term, each soft
-maximum still a mean over the whole group; the set is recomputed from the whole group
-``SAMPLE_ROUNDS`` times. The ε written is always exact: the largest distance of every
-covered vertex from the chosen triangle.
+A group with more than ``2 · sample`` covered vertices is fitted on a weighted sample of
+them: the ``sample`` farthest from the current triangle (weight 1) and ``sample`` drawn at
+random from the rest (weight (m − sample) / sample); likewise its vertex–triangle pairs
+when there are more than ``2 · pair_sample``. Each soft maximum stays a weighted mean over
+the whole group; the sample is redrawn around the current triangle ``SAMPLE_ROUNDS``
+times. The ε written is always exact: the largest distance of every covered vertex from
+the chosen triangle.
 """
 
 import numpy as np
@@ -33,6 +34,7 @@ SAMPLE_ROUNDS = 3
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
 _MIX2 = np.uint64(0x94D049BB133111EB)
+_FIT_STREAM = np.uint64(0xD1B54A32D192ED03)
 
 
 # ---------------------------------------------------------------------- random numbers
@@ -439,7 +441,7 @@ def _weighted_sample(key, size, state, stream):
     weight[:size] = 1.0
     rest = n - size
     for i in range(size):
-        pick = size + min(int(_uniform(state, stream * n + i) * rest), rest - 1)
+        pick = size + min(int(_uniform(_mix(state + np.uint64(stream)), i) * rest), rest - 1)
         index[size + i] = ranked[pick]
         weight[size + i] = rest / size
     return index, weight
@@ -459,8 +461,8 @@ def surrogate_nodes(
     starts, counts, node_ids : (n,) int64 — segments and tree indices of the groups
     leaf_epsilon : float — ε of the original triangles; seed : int — the tree's seed
     params : (6,) float64 — the functional's parameters; ``fit`` False keeps the initial
-        triangle; iterations, history, tolerance — L-BFGS; sample — a large group is fitted
-        on its ``sample`` farthest vertices and ``sample`` more drawn at random (pairs: 3×)
+        triangle; min_fit — smallest group fitted; iterations, history, tolerance — L-BFGS;
+        sample, pair_sample — weighted-sample sizes (module docstring)
     mark : (V,) int64 — scratch of this call's thread: zeros, or as an earlier call left it
     out_tris : (n, 3, 3) float64, out_eps : (n,) float64 — written at rows lo … hi − 1
 
@@ -505,7 +507,7 @@ def surrogate_nodes(
         eps = largest_distance(points, initial)
         out_tris[g] = initial
         if fit and count >= min_fit:
-            state = _stream(seed, node_ids[g])
+            state = _stream(seed, node_ids[g]) ^ _FIT_STREAM  # not k-means's draws
             _fit(
                 points, group, initial, params, iterations, history, tolerance, sample,
                 pair_sample, state, fitted,

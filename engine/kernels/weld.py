@@ -19,14 +19,16 @@ _U = np.uint64
 
 
 @njit(**EXACT)
-def _slot(points, head, mask, inv, lo, a, b, c):
+def _slot(points, head, mask, inv, lo, a, b, c, salt):
     """Slot of grid cell (a, b, c) in the open-addressed table `head`: the slot holding
     it, or the empty slot where it would go (``head[slot] == -1``)."""
     h = (
         (_U(a) * _U(0x9E3779B97F4A7C15))
         ^ (_U(b) * _U(0xC2B2AE3D27D4EB4F))
         ^ (_U(c) * _U(0x165667B19E3779F9))
+        ^ _U(salt)
     )
+    h = h * _U(0xBF58476D1CE4E5B9)
     s = np.int64((h ^ (h >> _U(29))) & _U(mask))
     while True:
         j = head[s]
@@ -43,7 +45,7 @@ def _slot(points, head, mask, inv, lo, a, b, c):
 
 
 @njit(**EXACT)
-def weld_kernel(points, tol, cell, lo, head, link, rep):
+def weld_kernel(points, tol, cell, lo, head, link, rep, salt):
     """Merge each point into the earliest representative within `tol`, in input order.
 
     ``points (n, 3)`` float64; ``tol >= 0`` the merge distance; ``cell`` the grid
@@ -51,7 +53,9 @@ def weld_kernel(points, tol, cell, lo, head, link, rep):
     float64 the grid origin, at least one cell below every point; ``head (m,)`` int64
     filled with -1, ``m`` a power of two ``> n`` (scratch: hash table of occupied
     cells, each the newest representative in it); ``link (n,)`` int64 scratch (the
-    next older representative in the same cell).
+    next older representative in the same cell); ``salt`` a random int64 mixed into the
+    cell hash, so that no fixed input can make the probes collide (the result does not
+    depend on it).
 
     Writes ``rep (n,)`` int64: point ``i`` becomes a representative (``rep[i] = i``)
     unless an earlier representative lies within ``tol`` (Euclidean); then ``rep[i]``
@@ -79,15 +83,16 @@ def weld_kernel(points, tol, cell, lo, head, link, rep):
         for a in range(ax, ax + 2):
             for b in range(ay, ay + 2):
                 for c in range(az, az + 2):
-                    j = head[_slot(points, head, mask, inv, lo, a, b, c)]
+                    j = head[_slot(points, head, mask, inv, lo, a, b, c, salt)]
                     while j >= 0:
                         if best < 0 or j < best:
                             dx, dy, dz = points[j, 0] - x, points[j, 1] - y, points[j, 2] - z
-                            if dx * dx + dy * dy + dz * dz <= tol2:
+                            near = abs(dx) <= tol and abs(dy) <= tol and abs(dz) <= tol
+                            if near and dx * dx + dy * dy + dz * dz <= tol2:
                                 best = j
                         j = link[j]
         if best < 0:
-            s = _slot(points, head, mask, inv, lo, cx, cy, cz)
+            s = _slot(points, head, mask, inv, lo, cx, cy, cz, salt)
             link[i] = head[s]
             head[s] = i
             rep[i] = i

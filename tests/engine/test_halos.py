@@ -186,3 +186,20 @@ def test_a_ball_with_no_epsilon_anywhere_rests_within_one_percent_of_its_radius(
     reach = scene.epsilon.sum()
     phi = math.sqrt(scene.masses[body]) * np.linalg.norm(scene.gravity) / law.stiffness
     assert gap == pytest.approx(reach * (1 - phi), rel=1e-4)
+
+
+@pytest.mark.parametrize(("built_with", "shifted_to"), [(1.0, 1e-9), (5.0, 1e-12), (1e-9, 2.0)])
+def test_a_large_shift_keeps_every_node_at_least_as_conservative_as_a_direct_build(
+    built_with, shifted_to
+):
+    """ε_node − ε_leaf loses up to half an ulp of the old ε; the shift adds it back, so
+    even a shift from a thick halo to a hair's breadth is never below a direct build."""
+    mesh = shapes.noisy_sphere(subdivisions=2, seed=7)
+    tree = shifted_tree(build_tree(mesh, built_with, seed=2), shifted_to)
+    built = build_tree(mesh, shifted_to, seed=2)
+    np.testing.assert_array_equal(built.triangles, tree.triangles)
+    assert (tree.epsilon >= built.epsilon).all()
+    # and above it by at most the rounding of the old ε (a few ulp of it)
+    np.testing.assert_allclose(
+        tree.epsilon, built.epsilon, rtol=1e-14, atol=4 * np.spacing(built_with)
+    )

@@ -573,3 +573,24 @@ def test_a_non_finite_vertex_in_a_file_is_rejected(tmp_path):
     path.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nv 0 0 0\nf 1 2 3\nf 4 2 3\n")
     with pytest.raises(InvalidMeshError, match="non-finite"):
         load_mesh(path)
+
+
+def test_exact_merging_compares_coordinates_not_cells():
+    """Distinct points crowded into a 1e-13 box (every one in one grid cell of a
+    tolerance-free weld) stay distinct, equal ones merge, and a difference far below
+    the square root of the smallest double (1e-170: its square underflows) is a
+    difference."""
+    rng = np.random.default_rng(5)
+    crowd = rng.uniform(0.0, 1e-13, size=(3000, 3))
+    points = np.vstack([crowd, crowd[::7], [[1.0, 1.0, 1.0]], [[1e-170, 0.0, 0.0]], [[0.0] * 3]])
+    first, inverse = merge_equal(points)
+    distinct = np.unique(points, axis=0)
+    assert len(first) == len(distinct)
+    np.testing.assert_array_equal(points[first][inverse], points)
+    tiny = Mesh([[0.0, 0, 0], [1e-170, 0, 0], [1, 0, 0], [0, 1, 0]], [[1, 2, 3]], merge_tolerance=0)
+    assert tiny.repair.merged_vertices == 0 and tiny.repair.unreferenced_vertices == 1
+
+
+def test_coordinates_too_large_to_square_are_rejected():
+    with pytest.raises(InvalidMeshError, match="beyond"):
+        Mesh(icosphere(1).vertices * 1e160, icosphere(1).faces)

@@ -147,6 +147,9 @@ def test_load_rejects_garbage_and_other_versions(tmp_path):
         ({"branching": 1}, "branching"),
         ({"branching": True}, "branching"),
         ({"fit": "nope"}, "fit"),
+        ({"seed": -1}, "seed"),
+        ({"seed": 2**63}, "seed"),  # beyond float64's exact integers (the saved meta)
+        ({"seed": 1.5}, "seed"),
     ],
 )
 def test_bad_arguments(kwargs, match):
