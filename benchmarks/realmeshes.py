@@ -391,8 +391,16 @@ def compare_pose(meshes, trees, coal: Coal, a, b, rng, args) -> dict:
         idx = np.array(diff, np.int64)
         tri_a = pa.apply(meshes[a].vertices)[meshes[a].faces[idx[:, 0]]]
         tri_b = pb.apply(meshes[b].vertices)[meshes[b].faces[idx[:, 1]]]
-        off = np.abs(triangle_distances(tri_a, tri_b, kernel="exact").distance - margin) / margin
+        ratio = triangle_distances(tri_a, tri_b, kernel="exact").distance / margin
+        off = np.abs(ratio - 1.0)
         pose.update(max_tie=float(off.max()), non_ties=int((off > TIE).sum()))
+        # which side of the margin: only-ours pairs within it are contacts the peer missed
+        ours_only = np.array([pair in mine for pair in diff])
+        pose.update(
+            only_ours_within=int((ratio[ours_only] <= 1.0).sum()),
+            only_coal_within=int((ratio[~ours_only] <= 1.0).sum()),
+            only_ours_max_ratio=float(ratio[ours_only].max()) if ours_only.any() else None,
+        )
     if capacity <= args.flat_budget:
         flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False).pairs.tolist()
         flat = {tuple(p) for p in flat}
@@ -426,6 +434,8 @@ def contact_rows(meshes: dict, trees: dict, coal_module, args) -> list[dict]:
         for key in ("ours", "coal", "only_ours", "only_coal", "non_ties"):
             case[key] = sum(x[key] for x in p)
         case["max_tie"] = max(x.get("max_tie", 0.0) for x in p)
+        for key in ("only_ours_within", "only_coal_within"):
+            case[key] = sum(x.get(key, 0) for x in p)
         for stat in ("min", "median"):  # over passes; then median over poses, ratio of sums
             for who in ("ours", "coal"):
                 case[f"{who}_{stat}_s"] = float(np.median([x[f"{who}_{stat}_s"] for x in p]))
@@ -445,6 +455,7 @@ def print_contacts(c: dict) -> None:
     print(
         f"  {name:<44} {c['margin']:8.2g} {c['ours']:9,} {c['coal']:9,}"
         f" {c['only_ours']:5d}/{c['only_coal']:<5d} {c['non_ties']:4d} {c['max_tie']:8.1e}"
+        f" {c['only_ours_within']:5d}/{c['only_coal_within']:<5d}"
         f" {flat:>13} {c['ours_min_s'] * 1e3:9.3f} {c['coal_min_s'] * 1e3:9.3f}"
         f" {c['ratio_min']:6.2f} {c['ratio_median']:6.2f}"
     )
@@ -539,11 +550,13 @@ def main() -> None:
         print(
             f"\nmargin contacts, {args.poses} random near poses per pair, {args.passes} passes"
             f" (pairs summed over poses; only ours/only coal; !tie: those with"
-            f" |d - margin| > {TIE:g} margin; flat: missed/extra of ours | coal; ms: median over"
-            f" poses of the min over passes; ours/coal of the sums of min and of median):\n"
+            f" |d - margin| > {TIE:g} margin; in o/c: of the only-ours / only-coal pairs,"
+            f" those within the margin (exact d); flat: missed/extra of ours | coal;"
+            f" ms: median over poses of the min over passes;"
+            f" ours/coal of the sums of min and of median):\n"
             f"  {'pair':<44} {'margin':>8} {'ours':>9} {'coal':>9} {'only o/c':>11}"
-            f" {'!tie':>4} {'max tie':>8} {'vs flat':>13} {'ours ms':>9} {'coal ms':>9}"
-            f" {'o/c':>6} {'o/c md':>6}"
+            f" {'!tie':>4} {'max tie':>8} {'in o/c':>11} {'vs flat':>13} {'ours ms':>9}"
+            f" {'coal ms':>9} {'o/c':>6} {'o/c md':>6}"
         )
         contacts = contact_rows(meshes, trees, coal, args)
     seconds = time.perf_counter() - started
