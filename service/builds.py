@@ -10,13 +10,19 @@ tree); each owner then gets its own mesh row. Nothing ties a build to the reques
 started it: a client that disconnects does not stop it.
 
 Crash safety: at start-up every job still ``queued`` or ``building`` is queued again from
-its stored mesh, or marked ``failed`` (cause ``lost``) when that file is gone or
-unreadable; job files of finished jobs and half-written temporaries are removed. A build
-that raises never takes the server down: the job is marked ``failed`` with the reason —
-cause ``engine`` for an :class:`engine.EngineError` (the mesh cannot be built), ``memory``
-for an out-of-memory error, ``storage`` when the tree file cannot be written, ``internal``
-otherwise (logged with its traceback). A failed job is retried by uploading the mesh again
-(a new job).
+its stored mesh, or marked ``failed``: cause ``lost`` when that file is gone or unreadable,
+cause ``crashed`` when its build was already interrupted ``MAX_ATTEMPTS`` (3) times (the
+attempt is counted, and committed, as the build starts: a build that kills the process —
+out of memory, a crash — is not retried forever). Job files of finished jobs, tree files
+nothing refers to and half-written temporaries are removed. A build that raises never takes
+the server down: the job is marked ``failed`` with the reason — cause ``engine`` for an
+:class:`engine.EngineError` (the mesh cannot be built), ``memory`` for an out-of-memory
+error, ``storage`` when the tree file cannot be written, ``internal`` otherwise (logged
+with its traceback; the answer names no server internals) — and its tree file is removed
+unless something else uses it. Should the store fail to record a failure, the job reads
+as failed from memory (and is recovered at the next start). A failed job is retried by
+uploading the mesh again (a new job). Finished jobs older than the retention are
+forgotten at start-up and after every finished build.
 
 Cancellation: when every owner has left a job (``DELETE /v1/meshes/{id}`` while it is
 unfinished), the build stops at its next level and the job is marked ``failed`` (cause
@@ -40,7 +46,7 @@ import numpy as np
 from engine import EngineError, Mesh, build_tree
 from engine.tree import TREE_FORMAT
 
-from .store import ACTIVE, CANCELLED, Store
+from .store import ACTIVE, Store
 
 __all__ = ["BuildJobs", "Submission", "content_id", "mesh_facts"]
 
@@ -75,6 +81,15 @@ def mesh_facts(mesh_id: str, mesh: Mesh, tree, epsilon: float, branching: int) -
         "watertight": closed,
         "volume": float(mesh.volume) if closed else None,
     }
+
+
+MAX_ATTEMPTS = 3  # builds of one job interrupted by a crash before it is failed ("crashed")
+CRASHED = (
+    "the build was interrupted {attempts} times (the server stopped or crashed while building"
+    " it, e.g. out of memory) and is not tried again: upload a smaller mesh, or ask the"
+    " service's operator"
+)
+STORAGE = "the tree could not be stored (a storage error on the server, logged); try again later"
 
 
 class _Cancelled(Exception):
@@ -133,7 +148,9 @@ class BuildJobs:
         self.threads = threads
         self._queue: queue.Queue[str | None] = queue.Queue()
         self._live: dict[str, _Live] = {}
-        self._lock = threading.RLock()  # _live, and one submission at a time
+        self._lock = threading.Lock()  # _live and the waiters: never held across I/O
+        self._submitting = threading.Lock()  # one new job at a time (DB check + insert)
+        self._unrecorded: dict[str, dict] = {}  # failures the store could not record
         self._closed = False
         self._threads = [
             threading.Thread(target=self._work, name=f"build-{i}", daemon=True)
@@ -142,20 +159,25 @@ class BuildJobs:
 
     # --------------------------------------------------------------- life cycle
     def start(self) -> None:
-        """Recover the unfinished jobs of an earlier run (queued again, or failed when
-        their mesh is lost), remove stray job files and old finished jobs, then start the
+        """Recover the unfinished jobs of an earlier run (queued again; failed when their
+        mesh is lost or when their builds were interrupted ``MAX_ATTEMPTS`` times), remove
+        stray job files, unreferenced tree files and old finished jobs, then start the
         workers."""
         for job in self.store.jobs(statuses=ACTIVE):
+            if job["attempts"] >= MAX_ATTEMPTS:
+                self._fail(job["id"], "crashed", CRASHED.format(attempts=job["attempts"]))
+                self._count("failed")
+                continue
             try:
                 self.store.job_mesh(job["id"])
-            except (OSError, ValueError, KeyError) as exc:
+            except Exception as exc:  # missing, truncated, not a zip, not our arrays …
+                log.error("build job %s: its mesh is unreadable: %r", job["id"], exc)
                 reason = (
                     f"the uploaded mesh was lost across a restart ({type(exc).__name__});"
                     " upload it again"
                 )
-                self.store.set_job(job["id"], "failed", cause="lost", error=reason)
+                self._fail(job["id"], "lost", reason)
                 self._count("failed")
-                log.error("build job %s: %s", job["id"], reason)
                 continue
             self.store.set_job(job["id"], "queued", levels=0, nodes=0)
             self._enqueue(job["id"])
@@ -164,8 +186,10 @@ class BuildJobs:
         for path in self.store.jobs_dir.glob("*.npz"):
             if path.stem not in active:
                 path.unlink(missing_ok=True)
-        if self.retention > 0:
-            self.store.prune_jobs(time.time() - self.retention)
+        swept = self.store.sweep_trees()
+        if swept:
+            log.info("removed %d tree files nothing refers to", swept)
+        self._prune()
         for thread in self._threads:
             thread.start()
 
@@ -182,24 +206,37 @@ class BuildJobs:
         the job row are durable when this returns (blocking: call it in a worker
         thread). ``spec``: ``epsilon``, ``branching``, … of the build; ``extra``: the
         facts of this owner's upload (``repair``, ``epsilon_given``)."""
+        joined = self._join(owner, mesh_id, extra)
+        if joined is not None:
+            return joined
+        job_id = uuid.uuid4().hex
+        self.store.put_job_mesh(job_id, mesh.vertices, mesh.faces)  # no lock held: slow
+        try:
+            with self._submitting:  # another upload of the same content may have won
+                joined = self._join(owner, mesh_id, extra)
+                if joined is None:
+                    self.store.add_job(job_id, mesh_id, spec, owner, extra)
+                    self._enqueue(job_id)
+                    return Submission(job_id, True, True)
+        except BaseException:
+            self.store.drop_job_mesh(job_id)
+            raise
+        self.store.drop_job_mesh(job_id)
+        return joined
+
+    def _join(self, owner: str, mesh_id: str, extra: dict) -> Submission | None:
+        """Make ``owner`` an owner of the unfinished job of ``mesh_id``, if there is one."""
+        job_id = self.store.active_job(mesh_id)
+        if job_id is None:
+            return None
+        added = self.store.join_job(job_id, owner, extra)  # None: it finished meanwhile
+        if added is None:
+            return None
         with self._lock:
-            job_id = self.store.active_job(mesh_id)
-            if job_id is not None:
-                added = self.store.join_job(job_id, owner, extra)
-                if added is not None:
-                    live = self._live.get(job_id)
-                    if live is not None:
-                        live.cancelled = False
-                    return Submission(job_id, False, added)
-            job_id = uuid.uuid4().hex
-            self.store.put_job_mesh(job_id, mesh.vertices, mesh.faces)
-            try:
-                self.store.add_job(job_id, mesh_id, spec, owner, extra)
-            except BaseException:
-                self.store.drop_job_mesh(job_id)
-                raise
-            self._enqueue(job_id)
-        return Submission(job_id, True, True)
+            live = self._live.get(job_id)
+            if live is not None:
+                live.cancelled = False
+        return Submission(job_id, False, added)
 
     def _enqueue(self, job_id: str) -> None:
         with self._lock:
@@ -213,10 +250,14 @@ class BuildJobs:
             live = self._live.get(job_id)
             if live is None or live.finished.is_set():
                 return True
-            event = asyncio.Event()
-            live.waiters.append((asyncio.get_running_loop(), event))
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(event.wait(), timeout)
+            waiter = (asyncio.get_running_loop(), asyncio.Event())
+            live.waiters.append(waiter)
+        try:
+            with contextlib.suppress(asyncio.TimeoutError):  # not TimeoutError before 3.11
+                await asyncio.wait_for(waiter[1].wait(), timeout)
+        finally:
+            with self._lock, contextlib.suppress(ValueError):
+                live.waiters.remove(waiter)
         return live.finished.is_set()
 
     def progress(self, job_id: str) -> tuple[int, int] | None:
@@ -224,9 +265,17 @@ class BuildJobs:
         live = self._live.get(job_id)
         return None if live is None else (live.levels, live.nodes)
 
+    def job(self, job_id: str, owner: str | None = None) -> dict | None:
+        """:meth:`Store.job`, failed when its failure could not be written to the store."""
+        job = self.store.job(job_id, owner)
+        if job is not None and job["status"] in ACTIVE and job_id in self._unrecorded:
+            job.update(self._unrecorded[job_id])
+        return job
+
     def leave(self, owner: str, mesh_id: str) -> bool:
         """``owner`` no longer waits for the unfinished build of ``mesh_id`` (False if it
-        did not); with nobody left, the build stops at its next level."""
+        did not); with nobody left, the build stops at its next level (blocking: call it
+        in a worker thread)."""
         left = self.store.leave_job(owner, mesh_id)
         if left is None:
             return False
@@ -250,13 +299,43 @@ class BuildJobs:
                 log.exception("build job %s: not finished", job_id)
 
     def _run(self, job_id: str) -> None:
+        """Build the job; whatever happens, a finished job (done or failed) releases its
+        waiters. A job queued again (joined after a cancellation) or abandoned at
+        shutdown stays unfinished."""
         live = self._live[job_id]
+        status = None
+        try:
+            status = self._build(job_id, live)
+        except Exception as exc:  # recording the outcome failed (the store is broken)
+            if self._closed:
+                return
+            log.exception("build job %s: its outcome could not be recorded", job_id)
+            status = "failed"
+            self._unrecorded[job_id] = {
+                "status": "failed",
+                "cause": "internal",
+                "error": f"build failed: internal error (logged): {type(exc).__name__}",
+            }
+        finally:
+            if status is not None:
+                with contextlib.suppress(OSError):
+                    self.store.drop_job_mesh(job_id)
+                self._count(status)
+                self._finish(live)
+                with contextlib.suppress(Exception):
+                    self._prune()
+
+    def _build(self, job_id: str, live: _Live) -> str | None:
+        """Run one job: ``"done"``, ``"failed"`` (recorded in the store), or None when the
+        job stays unfinished (queued again, or abandoned at shutdown)."""
         job = self.store.job(job_id)
         start = time.perf_counter()
+        started = False
         try:
             if self.store.owners(job_id) == 0:
                 raise _Cancelled
-            self.store.set_job(job_id, "building")
+            self.store.start_job(job_id)  # attempts + 1, committed before the build
+            started = True
             live.status = "building"
             self._gauges()
             spec = job["spec"]
@@ -281,7 +360,7 @@ class BuildJobs:
                     threads=self.threads,
                 )
                 if self._closed:
-                    return
+                    raise _Cancelled
                 try:
                     self.store.put_tree(job["mesh"], tree)
                 except OSError as exc:
@@ -293,46 +372,60 @@ class BuildJobs:
             levels, nodes = facts["levels"], facts["nodes"]
             live.levels, live.nodes = levels, nodes
             owners = self.store.finish_job(job_id, facts, levels, nodes, seconds)
-            status = "done" if owners else "failed"
-            if self.metrics is not None and owners:
+            if not owners:  # all left during the last level: marked cancelled
+                return "failed"
+            if self.metrics is not None:
                 self.metrics.build_seconds.observe(seconds)
+            return "done"
         except _Cancelled:
-            if self._closed:
-                return  # shutting down: queued again at the next start
-            if self.store.owners(job_id) > 0:  # someone joined after the last one left
-                live.cancelled, live.status, live.levels, live.nodes = False, "queued", 0, 0
-                self.store.set_job(job_id, "queued", levels=0, nodes=0)
-                self._queue.put(job_id)
-                return
-            status = "failed"
-            self.store.set_job(job_id, status, cause="cancelled", error=CANCELLED)
-        except EngineError as exc:
-            status = "failed"
-            error = f"the tree cannot be built: {exc}"
-            self.store.set_job(job_id, status, cause="engine", error=error)
-        except _StorageError as exc:
-            log.error("build job %s: %s", job_id, exc)
-            status = "failed"
-            self.store.set_job(job_id, status, cause="storage", error=str(exc))
-        except MemoryError:
-            status = "failed"
-            triangles = job["spec"].get("triangles") if job else None
+            if self._closed:  # shutting down: queued again at the next start, not counted
+                if started:
+                    with contextlib.suppress(Exception):
+                        self.store.set_job(job_id, "queued", attempts=job["attempts"])
+                return None
+            if self.store.cancel_job(job_id):
+                return "failed"
+            # someone joined after the last one left: build it for them
+            live.cancelled, live.status, live.levels, live.nodes = False, "queued", 0, 0
             self.store.set_job(
                 job_id,
-                status,
-                cause="memory",
-                error=f"out of memory while building the tree of {triangles} triangles",
+                "queued",
+                levels=0,
+                nodes=0,
+                **({"attempts": job["attempts"]} if started else {}),
             )
-        except Exception as exc:
+            self._queue.put(job_id)
+            return None
+        except EngineError as exc:
+            return self._fail(job_id, "engine", f"the tree cannot be built: {exc}")
+        except _StorageError as exc:
+            log.error("build job %s: %s", job_id, exc)
+            return self._fail(job_id, "storage", STORAGE)
+        except MemoryError:
+            triangles = job["spec"].get("triangles") if job else None
+            error = f"out of memory while building the tree of {triangles} triangles"
+            return self._fail(job_id, "memory", error + "; try again later")
+        except Exception:
             if self._closed:
-                return
+                return None
             log.exception("build job %s failed", job_id)
-            status = "failed"
-            error = f"build failed: {type(exc).__name__}: {exc}"
-            self.store.set_job(job_id, status, cause="internal", error=error)
-        self.store.drop_job_mesh(job_id)
-        self._count(status)
-        self._finish(live)
+            return self._fail(job_id, "internal", "build failed: internal error (logged)")
+
+    def _fail(self, job_id: str, cause: str, error: str) -> str:
+        """Record the failure (and drop a tree file nothing else uses); when the store
+        cannot, keep it in memory so that the job still reads as failed. ``"failed"``."""
+        try:
+            self.store.fail_job(job_id, cause, error)
+        except Exception:
+            log.exception("build job %s: failure (%s) not recorded in the store", job_id, cause)
+            self._unrecorded[job_id] = {"status": "failed", "cause": cause, "error": error}
+        log.error("build job %s failed (%s): %s", job_id, cause, error)
+        return "failed"
+
+    def _prune(self) -> None:
+        """Forget the finished jobs older than the retention."""
+        if self.retention > 0:
+            self.store.prune_jobs(time.time() - self.retention)
 
     def _finish(self, live: _Live) -> None:
         with self._lock:

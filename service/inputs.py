@@ -69,7 +69,7 @@ def flag(value: Any, name: str) -> bool:
 
 
 def choice(value: Any, name: str, options) -> str:
-    if value not in options:
+    if not isinstance(value, str) or value not in options:
         raise Unprocessable(f"{name} must be one of {sorted(options)}, got {value!r}")
     return value
 

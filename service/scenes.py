@@ -146,7 +146,7 @@ def _body(value, where: str) -> dict:
 
 def _epsilon(value, name: str) -> float | str | None:
     """An ε field: absent (None) or ``"auto"`` for the default rule, else a number > 0."""
-    if value is None or value == AUTO:
+    if value is None or (isinstance(value, str) and value == AUTO):
         return value
     eps = number(value, name, 0.0)
     if not eps > 0:

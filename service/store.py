@@ -4,13 +4,12 @@ Layout under the data directory: ``mrdem.sqlite3`` (WAL, ``synchronous=FULL``: a
 row survives ``kill -9`` and power loss), ``trees/<id>.npz`` and ``jobs/<job>.npz``. A
 file is written before the row that refers to it — to a temporary file, fsynced, renamed
 into place, the directory fsynced — so an acknowledged mesh always has its tree and an
-acknowledged build job its mesh, and a crash leaves at most an unreferenced file (a tree
-is reused by the next upload of the same content; temporaries and job files without a
-live job are removed at start-up). Meshes belong to an owner (the API key's digest; ""
-when the service runs without keys); a tree file is shared by every owner of the same
-content and kept while a mesh, a scene or an unfinished build job refers to it. A scene's
-row holds its specification and its latest state, replaced in one transaction per
-acknowledged step.
+acknowledged build job its mesh, and a crash leaves at most an unreferenced file:
+temporaries, job files without a live job and tree files nothing refers to are removed at
+start-up. Meshes belong to an owner (the API key's digest; "" when the service runs
+without keys); a tree file is shared by every owner of the same content and kept while a
+mesh, a scene or an unfinished build job refers to it. A scene's row holds its
+specification and its latest state, replaced in one transaction per acknowledged step.
 
 Build jobs (:mod:`service.builds`): a row per build of one content (``queued``,
 ``building``, ``done`` or ``failed``) with the uploaders waiting for it in
@@ -71,7 +70,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     cause   TEXT,
     error   TEXT,
     created REAL NOT NULL,
-    updated REAL NOT NULL
+    updated REAL NOT NULL,
+    attempts INTEGER NOT NULL DEFAULT 0
 );
 CREATE INDEX IF NOT EXISTS jobs_mesh ON jobs (mesh, status);
 CREATE TABLE IF NOT EXISTS job_owners (
@@ -83,7 +83,9 @@ CREATE TABLE IF NOT EXISTS job_owners (
 """
 
 ACTIVE = ("queued", "building")
-_JOB_COLUMNS = "id, mesh, status, spec, levels, nodes, seconds, cause, error, created, updated"
+_JOB_COLUMNS = (
+    "id, mesh, status, spec, levels, nodes, seconds, cause, error, created, updated, attempts"
+)
 
 
 class Store:
@@ -109,6 +111,9 @@ class Store:
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
         self.db.executescript(_SCHEMA)
+        columns = {row[1] for row in self.db.execute("PRAGMA table_info(jobs)")}
+        if "attempts" not in columns:  # a store written before build attempts were counted
+            self.db.execute("ALTER TABLE jobs ADD COLUMN attempts INTEGER NOT NULL DEFAULT 0")
         self.lock = threading.Lock()
         self._cache: OrderedDict[str, SurrogateTree] = OrderedDict()
         self._cache_size = tree_cache
@@ -154,9 +159,14 @@ class Store:
                 self._cache.popitem(last=False)
 
     # ----------------------------------------------------------------- meshes
-    def add_mesh(self, owner: str, mesh_id: str, facts: dict) -> bool:
-        """Record the mesh for ``owner``; False when it was there already."""
+    def add_mesh(self, owner: str, mesh_id: str, facts: dict) -> bool | None:
+        """Record the mesh for ``owner`` if its tree file is stored: True when added, False
+        when it was there already, None when the tree file is gone (the last mesh using it
+        was deleted meanwhile: build it again). Checked under the lock that deletions take,
+        so a recorded mesh always has its tree."""
         with self.lock:
+            if not self.tree_path(mesh_id).exists():
+                return None
             cursor = self.db.execute(
                 "INSERT OR IGNORE INTO meshes (owner, id, facts, created) VALUES (?, ?, ?, ?)",
                 (owner, mesh_id, json.dumps(facts), time.time()),
@@ -188,8 +198,16 @@ class Store:
             self._drop_unused([mesh_id])
         return True
 
-    def _drop_unused(self, tree_ids) -> None:
-        """Remove the tree files no mesh, scene or unfinished job refers to (lock held)."""
+    def sweep_trees(self) -> int:
+        """Remove the tree files no mesh, scene or unfinished job refers to (left by a
+        crash between writing a tree and recording it); how many were removed."""
+        with self.lock:
+            return self._drop_unused(p.stem for p in self.trees_dir.glob("*.npz"))
+
+    def _drop_unused(self, tree_ids) -> int:
+        """Remove the tree files no mesh, scene or unfinished job refers to (lock held);
+        how many files were removed."""
+        dropped = 0
         for tree_id in set(tree_ids):
             used = self.db.execute(
                 "SELECT 1 FROM meshes WHERE id = ? UNION ALL"
@@ -199,12 +217,21 @@ class Store:
             ).fetchone()
             if used is None:
                 self._cache.pop(tree_id, None)
-                self.tree_path(tree_id).unlink(missing_ok=True)
+                path = self.tree_path(tree_id)
+                if path.exists():
+                    path.unlink(missing_ok=True)
+                    dropped += 1
+        return dropped
 
     # ----------------------------------------------------------------- scenes
-    def add_scene(self, owner: str, scene_id: str, spec: dict, state: bytes, trees) -> None:
-        """Record a new scene, its state and the trees it uses, in one transaction."""
+    def add_scene(self, owner: str, scene_id: str, spec: dict, state: bytes, trees) -> list:
+        """Record a new scene, its state and the trees it uses, in one transaction. Returns
+        the trees whose files are gone (their meshes deleted meanwhile): then nothing is
+        recorded."""
         with self.lock:
+            missing = sorted(t for t in set(trees) if not self.tree_path(t).exists())
+            if missing:
+                return missing
             self.db.execute("BEGIN IMMEDIATE")
             try:
                 self.db.execute(
@@ -220,6 +247,7 @@ class Store:
             except BaseException:
                 self.db.execute("ROLLBACK")
                 raise
+        return []
 
     def scene(self, owner: str, scene_id: str) -> tuple[dict, bytes, int] | None:
         """``(spec, state, steps)`` of ``owner``'s scene, or None."""
@@ -269,8 +297,9 @@ class Store:
         _write_durably(self.job_path(job_id), buffer.getvalue())
 
     def job_mesh(self, job_id: str) -> tuple[np.ndarray, np.ndarray]:
-        """The job's ``(vertices (V, 3) float64, faces (F, 3) int32)``; OSError or
-        ValueError when its file is missing or unreadable."""
+        """The job's ``(vertices (V, 3) float64, faces (F, 3) int32)``; raises (OSError,
+        ValueError, EOFError, zipfile.BadZipFile, …) when its file is missing or
+        unreadable."""
         with np.load(self.job_path(job_id), allow_pickle=False) as data:
             return np.array(data["vertices"]), np.array(data["faces"])
 
@@ -291,7 +320,7 @@ class Store:
         with self.lock, self._transaction():
             self.db.execute(
                 f"INSERT INTO jobs ({_JOB_COLUMNS}) VALUES (?, ?, 'queued', ?, 0, 0, NULL,"
-                " NULL, NULL, ?, ?)",
+                " NULL, NULL, ?, ?, 0)",
                 (job_id, mesh_id, json.dumps(spec), now, now),
             )
             self.db.execute(
@@ -333,8 +362,9 @@ class Store:
             job["extra"] = json.loads(extra[0])
         return job
 
-    def jobs(self, owner: str | None = None, statuses=None) -> list[dict]:
-        """Jobs (oldest first): those ``owner`` waits for (None: all), of ``statuses``."""
+    def jobs(self, owner: str | None = None, statuses=None, limit: int | None = None) -> list[dict]:
+        """Jobs (oldest first): those ``owner`` waits for (None: all), of ``statuses``;
+        with ``limit``, only the newest ``limit`` of them."""
         query = f"SELECT {_JOB_COLUMNS} FROM jobs"
         args: list = []
         where = []
@@ -346,6 +376,9 @@ class Store:
             args.extend(statuses)
         if where:
             query += " WHERE " + " AND ".join(where)
+        if limit is not None:
+            query = f"SELECT * FROM ({query} ORDER BY created DESC, id DESC LIMIT ?)"
+            args.append(int(limit))
         with self.lock:
             rows = self.db.execute(query + " ORDER BY created, id", args).fetchall()
         return [_job_row(r) for r in rows]
@@ -359,7 +392,7 @@ class Store:
 
     def set_job(self, job_id: str, status: str, **columns) -> None:
         """Set the job's status and any of ``levels``, ``nodes``, ``seconds``, ``cause``,
-        ``error``."""
+        ``error``, ``attempts``."""
         sets = ", ".join(f"{k} = ?" for k in columns)
         with self.lock:
             self.db.execute(
@@ -367,6 +400,47 @@ class Store:
                 " WHERE id = ?",
                 (status, time.time(), *columns.values(), job_id),
             )
+
+    def start_job(self, job_id: str) -> int:
+        """Mark the job ``building`` and count the attempt (committed before the build
+        starts, so a build that kills the process is counted); the attempts so far."""
+        with self.lock, self._transaction():
+            self.db.execute(
+                "UPDATE jobs SET status = 'building', attempts = attempts + 1, updated = ?"
+                " WHERE id = ?",
+                (time.time(), job_id),
+            )
+            row = self.db.execute("SELECT attempts FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        return 0 if row is None else int(row[0])
+
+    def fail_job(self, job_id: str, cause: str, error: str) -> None:
+        """Mark the job ``failed`` with its ``cause`` and ``error``, and remove its tree
+        file if nothing else refers to it (one transaction)."""
+        with self.lock, self._transaction():
+            self.db.execute(
+                "UPDATE jobs SET status = 'failed', cause = ?, error = ?, updated = ? WHERE id = ?",
+                (cause, error, time.time(), job_id),
+            )
+            row = self.db.execute("SELECT mesh FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            if row is not None:
+                self._drop_unused([row[0]])
+
+    def cancel_job(self, job_id: str) -> bool:
+        """Mark the unfinished job ``failed`` (cancelled) **if** nobody waits for it — one
+        conditional statement, so an upload joining at that moment either joins before
+        (and the job goes on: False) or finds the job failed (and starts a new one)."""
+        with self.lock, self._transaction():
+            cursor = self.db.execute(
+                "UPDATE jobs SET status = 'failed', cause = 'cancelled', error = ?, updated = ?"
+                " WHERE id = ? AND status IN (?, ?)"
+                " AND NOT EXISTS (SELECT 1 FROM job_owners WHERE job = ?)",
+                (CANCELLED, time.time(), job_id, *ACTIVE, job_id),
+            )
+            if cursor.rowcount == 0:
+                return False
+            row = self.db.execute("SELECT mesh FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            self._drop_unused([row[0]])
+        return True
 
     def finish_job(self, job_id: str, facts: dict, levels: int, nodes: int, seconds: float):
         """In one transaction: the job done and a mesh row (``facts`` plus the owner's

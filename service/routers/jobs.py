@@ -3,12 +3,13 @@
 ``GET /v1/meshes/jobs/{job}`` → 200 with the job (``status``: ``queued`` | ``building`` |
 ``done`` | ``failed``; ``progress``; ``error`` when failed; the mesh ``facts`` when done),
 ``Retry-After: 1`` while unfinished; 404 for an unknown job or one the caller does not
-wait for. ``GET /v1/meshes/jobs`` lists the caller's jobs, oldest first.
+wait for. ``GET /v1/meshes/jobs?limit=100`` lists the caller's newest ``limit`` jobs
+(1 … 1000, default 100), oldest first.
 """
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Query, Request
 
 from ..auth import owner_of
 from ..codecs import respond
@@ -17,6 +18,7 @@ from ..store import ACTIVE
 
 router = APIRouter(prefix="/v1/meshes/jobs", tags=["meshes"])
 
+MAX_LISTED = 1000
 POLL_AFTER = "1"  # Retry-After of an unfinished job: a hint for pollers, in seconds
 
 
@@ -57,15 +59,19 @@ def job_view(request: Request, owner: str, job: dict) -> dict:
 
 
 @router.get("")
-async def list_jobs(request: Request, owner: str = Depends(owner_of)):
-    store = request.app.state.store
-    jobs = [store.job(j["id"], owner) for j in store.jobs(owner)]
+async def list_jobs(
+    request: Request,
+    owner: str = Depends(owner_of),
+    limit: int = Query(100, ge=1, le=MAX_LISTED),
+):
+    state = request.app.state
+    jobs = [state.builds.job(j["id"], owner) for j in state.store.jobs(owner, limit=limit)]
     return respond(request, {"jobs": [job_view(request, owner, j) for j in jobs if j]})
 
 
 @router.get("/{job_id}")
 async def get_job(job_id: str, request: Request, owner: str = Depends(owner_of)):
-    job = request.app.state.store.job(job_id, owner)
+    job = request.app.state.builds.job(job_id, owner)
     if job is None:
         raise NotFound(f"no build job {job_id!r}")
     headers = {"Retry-After": POLL_AFTER} if job["status"] in ACTIVE else None

@@ -6,8 +6,9 @@ index or zero area dropped, unreferenced vertices dropped; ``repair`` in the ans
 what changed). Its id is the content id of the repaired mesh, ε, branching and the tree
 format. A tree already stored is reused (201, or 200 when this owner has the mesh);
 otherwise the upload becomes a build job (:mod:`service.builds`) and waits up to
-``MRDEM_BUILD_WAIT`` seconds: 201/200 with the facts if the build finished, a problem if
-it failed, else **202** with ``Location: /v1/meshes/jobs/{job}`` and the job's status.
+``MRDEM_BUILD_WAIT`` seconds (less when the query parameter ``wait`` asks for less): 201/200
+with the facts if the build finished, a problem if it failed, else **202** with
+``Location: /v1/meshes/jobs/{job}`` and the job's status.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from engine.halos import size_epsilon
 from ..auth import owner_of
 from ..builds import content_id, mesh_facts
 from ..codecs import decode, respond
-from ..errors import BadRequest, Conflict, NotFound, ServiceError, Unprocessable
+from ..errors import BadRequest, Conflict, NotFound, NotReady, ServiceError, Unprocessable
 from ..inputs import array, field, flag, number
 from ..store import ACTIVE
 from .jobs import POLL_AFTER, job_location, job_view
@@ -43,8 +44,17 @@ async def upload_mesh(request: Request, owner: str = Depends(owner_of)):
     ``epsilon``, ``branching``, ``strict``, ``file_type``), or a JSON/msgpack body
     ``{vertices (V, 3), faces (F, 3), epsilon?, branching?, strict?}``. 201 with the facts
     (200 when this owner has the mesh already) once its tree is stored; 202 with
-    ``Location`` of the build job when the build takes longer than ``MRDEM_BUILD_WAIT``."""
+    ``Location`` of the build job when the build takes longer than the wait: the query
+    parameter ``wait`` (seconds, >= 0; a client sets it below its read timeout), at most
+    ``MRDEM_BUILD_WAIT``."""
     state = request.app.state
+    wait = state.settings.build_wait
+    if "wait" in request.query_params:
+        asked = request.query_params["wait"]
+        try:
+            wait = min(wait, number(float(asked), "wait", 0.0))
+        except ValueError:
+            raise Unprocessable(f"wait must be a number of seconds >= 0, got {asked!r}") from None
     media = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if media == "multipart/form-data":
         data, file_type, options = await _from_form(request)
@@ -55,7 +65,7 @@ async def upload_mesh(request: Request, owner: str = Depends(owner_of)):
         body = decode(await request.body(), media)
         vertices = array(field(body, "vertices"), "vertices", (None, 3))
         faces = array(field(body, "faces"), "faces", (None, 3), integer=True)
-        options = {k: body[k] for k in ("epsilon", "branching") if k in body}
+        options = {k: body[k] for k in ("epsilon", "branching") if body.get(k) is not None}
         options["strict"] = flag(body.get("strict", False), "strict")
         _check_faces(vertices, faces, state.settings.max_triangles)
         mesh = await state.engine.run("repair", _repaired, Mesh, vertices, faces, options["strict"])
@@ -78,11 +88,12 @@ async def upload_mesh(request: Request, owner: str = Depends(owner_of)):
             )
             facts = {**facts, **extra}
             created = state.store.add_mesh(owner, mesh_id, facts)
-            return respond(
-                request,
-                facts if created else state.store.mesh(owner, mesh_id),
-                201 if created else 200,
-            )
+            if created is not None:  # None: the tree file went meanwhile: build it again
+                return respond(
+                    request,
+                    facts if created else state.store.mesh(owner, mesh_id),
+                    201 if created else 200,
+                )
     spec = {
         "epsilon": epsilon,
         "branching": branching,
@@ -93,8 +104,8 @@ async def upload_mesh(request: Request, owner: str = Depends(owner_of)):
         "submit_build", state.builds.submit, owner, mesh, mesh_id, spec, extra
     )
     del mesh
-    await state.builds.wait(submitted.job_id, state.settings.build_wait)
-    job = state.store.job(submitted.job_id, owner)
+    await state.builds.wait(submitted.job_id, wait)
+    job = state.builds.job(submitted.job_id, owner)
     if job is None:  # this owner deleted the mesh while its upload waited
         raise Conflict(f"mesh {mesh_id!r} was deleted while its upload waited for the build")
     if job["status"] == "done":
@@ -130,9 +141,9 @@ async def delete_mesh(mesh_id: str, request: Request, owner: str = Depends(owner
     """Forget the mesh; while its tree is still being built, withdraw this owner's upload
     (the job is then gone for this owner, and stops when nobody else waits for it)."""
     state = request.app.state
-    if state.store.delete_mesh(owner, mesh_id):
+    if await state.engine.run("delete_mesh", state.store.delete_mesh, owner, mesh_id):
         state.banks.forget(mesh_id)
-    elif not state.builds.leave(owner, mesh_id):
+    elif not await state.engine.run("leave_job", state.builds.leave, owner, mesh_id):
         raise NotFound(f"no mesh {mesh_id!r}")
     return Response(status_code=204)
 
@@ -195,7 +206,7 @@ async def _from_form(request: Request) -> tuple[bytes, str, dict]:
     if file_type not in FILE_TYPES:
         raise Unprocessable(
             f"cannot tell the format of {upload.filename!r}: name the file *.stl, *.obj, *.ply,"
-            " *.off or *.glb, or send a 'file_type' field"
+            f" *.off, *.glb or *.gltf, or send a 'file_type' field (one of {', '.join(FILE_TYPES)})"
         )
     data = await upload.read()
     if not data:
@@ -257,7 +268,7 @@ def _failure(job: dict) -> ServiceError:
     """The problem answering an upload whose build failed while it waited."""
     where = job_location(job["id"])
     detail = f"{job['error']} (job {where})"
-    cls = {"engine": Unprocessable, "memory": Unprocessable, "cancelled": Conflict}.get(
+    cls = {"engine": Unprocessable, "memory": NotReady, "cancelled": Conflict}.get(
         job["cause"], ServiceError
     )
     return cls(detail, job=where, cause=job["cause"])

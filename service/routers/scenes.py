@@ -11,7 +11,7 @@ from fastapi.responses import Response
 
 from ..auth import owner_of
 from ..codecs import decode, respond
-from ..errors import NotFound, Unprocessable
+from ..errors import Conflict, NotFound, Unprocessable
 from ..inputs import array, number
 from ..scenes import (
     STATE,
@@ -49,7 +49,9 @@ async def create_scene(request: Request, owner: str = Depends(owner_of)):
         "build_scene", build_scene, spec, state.store.tree, state.settings.engine_threads
     )
     scene_id = uuid.uuid4().hex
-    state.store.add_scene(owner, scene_id, spec, pack_state(scene), meshes)
+    gone = state.store.add_scene(owner, scene_id, spec, pack_state(scene), meshes)
+    if gone:  # deleted while the scene was being built
+        raise Conflict(f"mesh {gone[0]!r} was deleted while the scene was created; upload it again")
     state.scenes.add(owner, scene_id, LiveScene(scene, spec, 0))
     return respond(request, _summary(scene_id, state.scenes.get(owner, scene_id)), 201)
 
