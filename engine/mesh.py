@@ -338,6 +338,9 @@ def load_mesh(
         Missing or unreadable file, unknown format, no triangles, or an invalid mesh.
     InvalidArgumentError
         A stream given without `file_type`, or a `source` of the wrong type.
+    ImportError, MemoryError
+        Passed through: a missing reader dependency or exhausted memory is not the file's
+        fault.
     """
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
@@ -362,7 +365,9 @@ def load_mesh(
         vertices, faces = _scene_arrays(scene, merge_vertices)
     except InvalidMeshError as exc:
         raise InvalidMeshError(f"cannot read {file_type} mesh {where}: {exc}") from exc
-    except Exception as exc:  # trimesh raises many types; none may escape
+    except (ImportError, MemoryError):  # the installation or the machine, not the file
+        raise
+    except Exception as exc:  # trimesh raises many types for a bad file; none may escape
         raise InvalidMeshError(
             f"cannot read {file_type} mesh {where}: {type(exc).__name__}: {exc}"
         ) from exc
