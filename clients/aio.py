@@ -11,7 +11,16 @@ from typing import Any
 import httpx
 
 from .base import ClientBase, scene_fields
-from .calls import Call, build_failure, job_path, poll_delay, result, retry_delay
+from .calls import (
+    Call,
+    Expired,
+    budget,
+    build_failure,
+    job_path,
+    poll_delay,
+    result,
+    retry_delay,
+)
 from .errors import BuildTimeout, ProblemError, ServiceUnreachable
 from .models import BuildJob, Contacts, MeshInfo, SceneState
 
@@ -36,20 +45,32 @@ class AsyncClient(ClientBase):
     async def aclose(self) -> None:
         await self._http.aclose()
 
-    async def _exchange(self, call: Call) -> tuple[Any, httpx.Response]:
-        """The decoded answer to ``call`` and the response, after the retries."""
+    async def _exchange(
+        self, call: Call, deadline: float | None = None
+    ) -> tuple[Any, httpx.Response]:
+        """The decoded answer to ``call`` and the response, after the retries; every try
+        and every pause before a retry end by ``deadline`` (``time.monotonic()``, None:
+        no deadline), else :class:`~clients.calls.Expired`."""
         attempt = 0
         while True:
+            timeout = budget(self.timeout, deadline)
             try:
-                response = await self._http.request(call.method, call.path, **self._arguments(call))
+                response = await self._http.request(
+                    call.method, call.path, **self._arguments(call, timeout)
+                )
             except httpx.TransportError as error:
+                if deadline is not None and time.monotonic() >= deadline:
+                    raise Expired from error
                 if not self._retry(call, attempt, error):
                     raise ServiceUnreachable(f"{call.method} {call.path}: {error!r}") from error
-                await asyncio.sleep(retry_delay(attempt, self.backoff))
+                delay = retry_delay(attempt, self.backoff)
             else:
                 if not self._retry(call, attempt, None, response):
                     return result(response), response
-                await asyncio.sleep(retry_delay(attempt, self.backoff, response))
+                delay = retry_delay(attempt, self.backoff, response)
+            if deadline is not None and time.monotonic() + delay >= deadline:
+                raise Expired
+            await asyncio.sleep(delay)
             attempt += 1
 
     async def _send(self, call: Call) -> tuple[Any, int]:
@@ -71,11 +92,16 @@ class AsyncClient(ClientBase):
         (polling the build job after a 202), ``BuildTimeout`` past ``timeout`` seconds,
         ``BuildFailed`` when the build fails; ``progress(job)`` with each job status."""
         deadline = None if timeout is None else time.monotonic() + timeout
+        call = self._upload(source, epsilon, branching, strict)
         try:
-            call = self._upload(source, epsilon, branching, strict)
-            payload, response = await self._exchange(call)
+            payload, response = await self._exchange(call, deadline)
         except ProblemError as error:
-            raise build_failure(error) from error
+            failure = build_failure(error)
+            if failure is None:
+                raise
+            raise failure from error
+        except Expired:
+            raise BuildTimeout(timeout, None) from None
         outcome = self._uploaded(payload, response)
         if isinstance(outcome, MeshInfo) or not wait:
             return outcome
@@ -83,8 +109,11 @@ class AsyncClient(ClientBase):
 
     async def job(self, job: BuildJob | str) -> BuildJob:
         """The current status of a build job (its :class:`BuildJob`, URL or id)."""
-        url = job_path(job)
-        payload, _ = await self._send(Call("GET", url))
+        return await self._job(job)
+
+    async def _job(self, job: BuildJob | str, deadline: float | None = None) -> BuildJob:
+        url = job_path(job, self.base_url)
+        payload, _ = await self._exchange(Call("GET", url), deadline)
         return BuildJob.from_payload(payload, url)
 
     async def wait_for_mesh(
@@ -115,7 +144,10 @@ class AsyncClient(ClientBase):
                 delay = min(delay, left)
             await asyncio.sleep(delay)
             polls += 1
-            job = await self.job(job)
+            try:
+                job = await self._job(job, deadline)
+            except Expired:
+                raise BuildTimeout(timeout, job.url, job) from None
 
     async def meshes(self) -> list[MeshInfo]:
         payload, _ = await self._send(Call("GET", "/v1/meshes"))

@@ -13,7 +13,10 @@ from .calls import (
     Call,
     columnar_call,
     contacts_call,
+    failed_build,
+    job_path,
     scene_call,
+    service_wait,
     upload_call,
 )
 from .codec import JSON, MSGPACK, encode
@@ -46,12 +49,17 @@ class ClientBase:
         if api_key:
             self.headers["authorization"] = f"Bearer {api_key}"
 
-    def _arguments(self, call: Call) -> dict:
+    def _arguments(self, call: Call, timeout: float | None) -> dict:
+        """httpx's arguments of one try of ``call`` that may take ``timeout`` seconds."""
+        arguments: dict = {"timeout": timeout}
+        if call.waits:
+            arguments["params"] = service_wait(timeout)
         if call.files is not None:
-            return {"files": call.files, "data": call.data}
+            return {**arguments, "files": call.files, "data": call.data}
         if call.payload is None:
-            return {}
+            return arguments
         return {
+            **arguments,
             "content": encode(call.payload, self.media),
             "headers": {"content-type": self.media},
         }
@@ -60,8 +68,8 @@ class ClientBase:
         """Whether to try ``call`` again after this failure."""
         if attempt >= self.retries:
             return False
-        if response is not None:
-            return response.status_code in RETRY_STATUS
+        if response is not None:  # a failed build (503: out of memory) is not sent again
+            return response.status_code in RETRY_STATUS and not failed_build(response)
         return isinstance(error, NEVER_SENT) or (
             call.repeatable and isinstance(error, httpx.TransportError)
         )
@@ -102,11 +110,11 @@ class ClientBase:
     def _mesh(payload: dict, status: int) -> MeshInfo:
         return MeshInfo.from_payload(payload, created=status == 201)
 
-    @staticmethod
-    def _uploaded(payload: dict, response: httpx.Response) -> MeshInfo | BuildJob:
+    def _uploaded(self, payload: dict, response: httpx.Response) -> MeshInfo | BuildJob:
         """An upload's answer: the mesh (200, 201) or its unfinished build job (202)."""
         if response.status_code == 202:
-            return BuildJob.from_payload(payload, response.headers.get("location"))
+            location = response.headers.get("location") or payload.get("location")
+            return BuildJob.from_payload(payload, job_path(location, self.base_url))
         return MeshInfo.from_payload(payload, created=response.status_code == 201)
 
     @staticmethod

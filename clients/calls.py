@@ -12,6 +12,7 @@ twice.
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,9 +26,12 @@ from .models import BuildJob, MeshInfo
 
 __all__ = [
     "Call",
+    "Expired",
     "build_failure",
+    "budget",
     "columnar_call",
     "contacts_call",
+    "failed_build",
     "job_path",
     "poll_delay",
     "retry_delay",
@@ -50,6 +54,33 @@ class Call:
     files: dict | None = None
     data: dict | None = None
     repeatable: bool = True  # safe to send again after a connection lost mid-request
+    waits: bool = False  # an upload: tells the service how long it may wait (``wait``)
+
+
+class Expired(Exception):
+    """The caller's deadline passed before the service answered (internal: the client
+    turns it into :class:`~clients.errors.BuildTimeout`)."""
+
+
+def budget(timeout: float | None, deadline: float | None) -> float | None:
+    """Seconds one request may take: the client's ``timeout`` (None: no limit), cut to
+    what is left before ``deadline`` (``time.monotonic()``); :class:`Expired` when
+    nothing is left."""
+    if deadline is None:
+        return timeout
+    left = deadline - time.monotonic()
+    if left <= 0:
+        raise Expired
+    return left if timeout is None else min(timeout, left)
+
+
+def service_wait(request_timeout: float | None) -> dict:
+    """The ``wait`` query parameter of an upload sent with ``request_timeout``: half of
+    it (the rest is for the transfer and the repair), so that the service answers — 202
+    with the build job, if need be — before the client stops reading."""
+    if request_timeout is None:
+        return {}
+    return {"wait": f"{max(0.0, request_timeout / 2):.3f}"}
 
 
 def mesh_id(value) -> str:
@@ -67,7 +98,8 @@ def upload_call(
     if isinstance(source, str | os.PathLike):
         path = Path(source)
         data = {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in options.items()}
-        return Call("POST", "/v1/meshes", files={"file": (path.name, path.read_bytes())}, data=data)
+        files = {"file": (path.name, path.read_bytes())}
+        return Call("POST", "/v1/meshes", files=files, data=data, waits=True)
     if hasattr(source, "vertices") and hasattr(source, "faces"):
         vertices, faces = source.vertices, source.faces
     else:
@@ -77,7 +109,7 @@ def upload_call(
         "faces": np.ascontiguousarray(faces, np.int64),
         **options,
     }
-    return Call("POST", "/v1/meshes", payload=payload)
+    return Call("POST", "/v1/meshes", payload=payload, waits=True)
 
 
 def pose_payload(pose) -> dict:
@@ -149,12 +181,18 @@ def scene_call(bodies, **fields) -> Call:
     return Call("POST", "/v1/scenes", payload=payload, repeatable=False)
 
 
-def job_path(job: BuildJob | str) -> str:
-    """The address of a build job: its :class:`BuildJob`, its URL or path, or its id."""
-    if isinstance(job, BuildJob):
-        return job.url
-    job = str(job)
-    return job if "/" in job else f"{JOBS}/{job}"
+def job_path(job: BuildJob | str, base_url: str | None = None) -> str:
+    """The address of a build job: its :class:`BuildJob`, its URL or path, or its id. An
+    absolute URL must have the origin of ``base_url`` (scheme, host, port): the API key
+    is never sent to another server (:class:`ClientError` otherwise)."""
+    url = job.url if isinstance(job, BuildJob) else str(job)
+    if "://" in url:
+        absolute, base = httpx.URL(url), httpx.URL(base_url or "")
+        origin = (absolute.scheme, absolute.host, absolute.port)
+        if base_url is None or origin != (base.scheme, base.host, base.port):
+            raise ClientError(f"build job URL {url!r} is not on the service {base_url!r}")
+        return absolute.raw_path.decode("ascii")
+    return url if "/" in url else f"{JOBS}/{url}"
 
 
 def poll_delay(polls: int) -> float:
@@ -163,13 +201,23 @@ def poll_delay(polls: int) -> float:
     return min(POLL_MAX, POLL_FIRST * 2**polls)
 
 
-def build_failure(error: ProblemError) -> ClientError:
+def build_failure(error: ProblemError) -> BuildFailed | None:
     """An upload's problem as :class:`BuildFailed` when it reports a failed build job
-    (members ``job`` and ``cause``), else the problem itself."""
+    (members ``job`` and ``cause``), else None."""
     job, cause = error.problem.get("job"), error.problem.get("cause")
     if not job or not cause:
-        return error
+        return None
     return BuildFailed(str(error.detail), str(cause), str(job))
+
+
+def failed_build(response: httpx.Response) -> bool:
+    """Whether an error answer reports a failed build job (a problem with ``job`` and
+    ``cause``): such an upload is not retried by itself."""
+    try:
+        problem = decode(response.content, response.headers.get("content-type", ""))
+    except (ValueError, TypeError):
+        return False
+    return isinstance(problem, dict) and bool(problem.get("job")) and bool(problem.get("cause"))
 
 
 def retry_delay(attempt: int, backoff: float, response: httpx.Response | None = None) -> float:

@@ -40,12 +40,21 @@ class BuildFailed(ClientError):
 class BuildTimeout(ClientError):
     """The tree was not built within the caller's ``timeout``; the build goes on: keep
     polling ``job_url`` (``client.wait_for_mesh(error.job)`` or ``client.job(url)``).
-    ``job`` is the last status seen."""
+    ``job`` is the last status seen. ``job_url`` is None when the deadline passed before
+    the service answered the upload itself: then uploading the same mesh again joins its
+    build if the service had accepted it."""
 
-    def __init__(self, timeout: float, job_url: str, job: Any = None) -> None:
-        status = getattr(job, "status", "unfinished")
-        super().__init__(
-            f"the tree was not built within {timeout:g} s (job {status}); it goes on:"
-            f" poll {job_url}"
-        )
+    def __init__(self, timeout: float, job_url: str | None, job: Any = None) -> None:
+        if job_url is None:
+            text = (
+                f"the service did not answer the upload within {timeout:g} s; upload the"
+                " mesh again to join its build if it was accepted"
+            )
+        else:
+            status = getattr(job, "status", "unfinished")
+            text = (
+                f"the tree was not built within {timeout:g} s (job {status}); it goes on:"
+                f" poll {job_url}"
+            )
+        super().__init__(text)
         self.timeout, self.job_url, self.job = timeout, job_url, job

@@ -9,7 +9,16 @@ from typing import Any, Literal, overload
 import httpx
 
 from .base import ClientBase, scene_fields
-from .calls import Call, build_failure, job_path, poll_delay, result, retry_delay
+from .calls import (
+    Call,
+    Expired,
+    budget,
+    build_failure,
+    job_path,
+    poll_delay,
+    result,
+    retry_delay,
+)
 from .errors import BuildTimeout, ProblemError, ServiceUnreachable
 from .models import BuildJob, Contacts, MeshInfo, SceneState
 
@@ -38,20 +47,30 @@ class Client(ClientBase):
     def close(self) -> None:
         self._http.close()
 
-    def _exchange(self, call: Call) -> tuple[Any, httpx.Response]:
-        """The decoded answer to ``call`` and the response, after the retries."""
+    def _exchange(self, call: Call, deadline: float | None = None) -> tuple[Any, httpx.Response]:
+        """The decoded answer to ``call`` and the response, after the retries; every try
+        and every pause before a retry end by ``deadline`` (``time.monotonic()``, None:
+        no deadline), else :class:`~clients.calls.Expired`."""
         attempt = 0
         while True:
+            timeout = budget(self.timeout, deadline)
             try:
-                response = self._http.request(call.method, call.path, **self._arguments(call))
+                response = self._http.request(
+                    call.method, call.path, **self._arguments(call, timeout)
+                )
             except httpx.TransportError as error:
+                if deadline is not None and time.monotonic() >= deadline:
+                    raise Expired from error
                 if not self._retry(call, attempt, error):
                     raise ServiceUnreachable(f"{call.method} {call.path}: {error!r}") from error
-                time.sleep(retry_delay(attempt, self.backoff))
+                delay = retry_delay(attempt, self.backoff)
             else:
                 if not self._retry(call, attempt, None, response):
                     return result(response), response
-                time.sleep(retry_delay(attempt, self.backoff, response))
+                delay = retry_delay(attempt, self.backoff, response)
+            if deadline is not None and time.monotonic() + delay >= deadline:
+                raise Expired
+            time.sleep(delay)
             attempt += 1
 
     def _send(self, call: Call) -> tuple[Any, int]:
@@ -108,10 +127,16 @@ class Client(ClientBase):
         with the service's reason. ``wait=False`` returns the :class:`BuildJob` of a 202
         at once."""
         deadline = None if timeout is None else time.monotonic() + timeout
+        call = self._upload(source, epsilon, branching, strict)
         try:
-            payload, response = self._exchange(self._upload(source, epsilon, branching, strict))
+            payload, response = self._exchange(call, deadline)
         except ProblemError as error:
-            raise build_failure(error) from error
+            failure = build_failure(error)
+            if failure is None:
+                raise
+            raise failure from error
+        except Expired:
+            raise BuildTimeout(timeout, None) from None
         outcome = self._uploaded(payload, response)
         if isinstance(outcome, MeshInfo) or not wait:
             return outcome
@@ -119,8 +144,11 @@ class Client(ClientBase):
 
     def job(self, job: BuildJob | str) -> BuildJob:
         """The current status of a build job (its :class:`BuildJob`, URL or id)."""
-        url = job_path(job)
-        payload, _ = self._send(Call("GET", url))
+        return self._job(job)
+
+    def _job(self, job: BuildJob | str, deadline: float | None = None) -> BuildJob:
+        url = job_path(job, self.base_url)
+        payload, _ = self._exchange(Call("GET", url), deadline)
         return BuildJob.from_payload(payload, url)
 
     def wait_for_mesh(
@@ -153,7 +181,10 @@ class Client(ClientBase):
                 delay = min(delay, left)
             time.sleep(delay)
             polls += 1
-            job = self.job(job)
+            try:
+                job = self._job(job, deadline)
+            except Expired:
+                raise BuildTimeout(timeout, job.url, job) from None
 
     def mesh(self, mesh: MeshInfo | str) -> MeshInfo:
         """The facts of one uploaded mesh (by :class:`MeshInfo` or id)."""

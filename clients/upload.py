@@ -27,25 +27,34 @@ __all__ = ["ProgressLine", "describe", "main"]
 
 class ProgressLine:
     """``progress`` callback of :meth:`Client.upload_mesh` that rewrites one line of
-    ``out``: the job's status, tree levels and nodes built so far, seconds waited."""
+    ``out`` (a terminal): the job's status, tree levels and nodes built so far, seconds
+    waited. When ``out`` is not a terminal (a log, a pipe), one plain line per change of
+    status or level instead."""
 
     def __init__(self, name: str, out: TextIO | None = None) -> None:
         self.name, self.out = name, out or sys.stderr
         self.start = time.monotonic()
         self.shown = False
+        isatty = getattr(self.out, "isatty", None)
+        self.terminal = bool(isatty and isatty())
+        self.last: tuple | None = None
 
     def __call__(self, job: BuildJob) -> None:
         seconds = time.monotonic() - self.start
         text = (
-            f"\r{self.name}: {job.status} — {job.triangles:,} triangles, level {job.levels},"
+            f"{self.name}: {job.status} — {job.triangles:,} triangles, level {job.levels},"
             f" {job.nodes:,} nodes ({seconds:.1f} s)"
         )
-        self.out.write(text.ljust(79))
+        if self.terminal:
+            self.out.write("\r" + text.ljust(79))
+            self.shown = True
+        elif (job.status, job.levels) != self.last:
+            self.out.write(text + "\n")
+        self.last = (job.status, job.levels)
         self.out.flush()
-        self.shown = True
 
     def end(self) -> None:
-        """End the progress line (if one was written)."""
+        """End the progress line (if one was written on a terminal)."""
         if self.shown:
             self.out.write("\n")
             self.out.flush()
