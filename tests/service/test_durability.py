@@ -3,6 +3,8 @@ after a restart, or reported failed with the reason); API keys isolate owners.""
 
 from __future__ import annotations
 
+import time
+
 import httpx
 import pytest
 from harness import (
@@ -61,6 +63,7 @@ def _after_restart(data, jobs: dict, lost: dict | None = None) -> None:
         (data / "jobs" / f"{lost['id']}.npz").unlink()
     planted = [data / "trees" / ".half.0123.tmp", data / "jobs" / ".half.4567.tmp"]
     planted.append(data / "jobs" / "0123456789abcdef.npz")  # a file with no job row
+    planted.append(data / "trees" / f"{'ab' * 16}.npz")  # a tree nothing refers to
     for path in planted:
         path.write_bytes(b"partial")
     second = ServiceProcess(data, build_wait="0").start()
@@ -116,8 +119,11 @@ def test_a_build_killed_midway_finishes_after_restart(tmp_path):
     try:
         with httpx.Client(base_url=first.url, timeout=120) as client:
             jobs = {"big": _accepted(client, shapes.icosphere(6), 0.001)}  # 81,920 triangles
+            deadline = time.monotonic() + 120
             while (seen := client.get(jobs["big"]["location"]).json())["progress"]["levels"] < 3:
                 assert seen["status"] in ("queued", "building"), seen
+                assert time.monotonic() < deadline, seen
+                time.sleep(0.01)
     finally:
         first.kill()
     _after_restart(data, jobs)

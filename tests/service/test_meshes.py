@@ -61,6 +61,25 @@ def test_file_upload_in_each_format(http, tmp_path, file_type):
     np.testing.assert_allclose(facts["bounds"], expected.bounds, atol=1e-6)
 
 
+def test_an_obj_that_is_not_utf8_is_read(http):
+    """A Latin-1 byte in a comment (many exporters write their locale's encoding): the
+    file is read, not answered with a missing-module error."""
+    mesh = shapes.icosphere(1, radius=0.5)
+    lines = [b"# export\xe9 par un logiciel fran\xe7ais"]
+    lines += [b"v %r %r %r" % tuple(v) for v in mesh.vertices.tolist()]
+    lines += [b"f %d %d %d" % tuple(f) for f in (mesh.faces + 1).tolist()]
+    data = b"\n".join(lines) + b"\n"
+    with pytest.raises(UnicodeDecodeError):
+        data.decode("utf-8")
+    response = http.post(
+        "/v1/meshes", files={"file": ("latin.obj", data)}, data={"epsilon": "0.02"}
+    )
+    assert response.status_code in (200, 201), response.text
+    facts = response.json()
+    assert facts["triangles"] == 80 and facts["watertight"]
+    np.testing.assert_allclose(facts["bounds"], mesh.bounds, atol=1e-12)
+
+
 def test_delete_then_unknown(http):
     facts = http.post("/v1/meshes", json={**tetrahedron(), "epsilon": 0.125}).json()
     assert http.delete(f"/v1/meshes/{facts['id']}").status_code == 204

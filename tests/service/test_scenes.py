@@ -178,6 +178,15 @@ def test_bad_scene_requests(http):
     ]
     for body, status, words in cases:
         assert_problem(http.post("/v1/scenes", json=body), status, words)
+    arrays = [  # msgpack arrays where a number or a name belongs: 422, never a 500
+        ({**good, "bodies": [{**body0, "epsilon": np.array([1.0, 2.0])}]}, "bodies[0].epsilon"),
+        ({**good, "bodies": [{**body0, "epsilon": np.array([1.0])}]}, "bodies[0].epsilon"),
+        ({**good, "epsilon": np.array([1.0, 2.0])}, "epsilon"),
+        ({**good, "scheme": np.array([1, 2])}, "scheme"),
+        ({**good, "contact_model": {"law": np.array([1.0, 2.0])}}, "contact_model.law"),
+    ]
+    for body, words in arrays:
+        assert_problem(post_msgpack(http, "/v1/scenes", body), 422, words)
     scene_id = http.post("/v1/scenes", json=good).json()["id"]
     step = f"/v1/scenes/{scene_id}/step"
     assert_problem(http.post(step, json={"steps": 0}), 422, "steps must be")
