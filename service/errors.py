@@ -7,18 +7,18 @@ One hierarchy for the service layer::
      ├── Unauthorized (401)       missing or unknown API key
      ├── NotFound (404)           unknown id (or another key's)
      ├── NotAcceptable (406)      no response media type the client accepts
-     ├── Conflict (409)           the mesh was deleted while its upload waited
+     ├── Conflict (409)           the mesh was deleted while its upload (or scene) waited
      ├── PayloadTooLarge (413)    body over ``max_body_bytes``
      ├── UnsupportedMediaType (415)
      ├── Unprocessable (422)      well-formed but invalid: shapes, ranges, limits
-     └── NotReady (503)           kernels still compiling
+     └── NotReady (503)           kernels still compiling; a build out of memory
 
 Engine errors (:class:`engine.EngineError`) are client errors by construction and become
 422 problems; request-validation errors too. Anything else is a bug: logged, answered with
 a 500 problem, the server stays up. A tree build that failed while its upload waited is
 answered with the job's own cause (:func:`service.routers.meshes._failure`): 422 for a mesh
-the engine cannot build, 409 when cancelled, 500 (a plain :class:`ServiceError`) when the
-server failed — the detail says why either way.
+the engine cannot build, 409 when cancelled, 503 when out of memory, 500 (a plain
+:class:`ServiceError`) when the server failed — the detail says why either way.
 """
 
 from __future__ import annotations
