@@ -566,6 +566,36 @@ def main() -> None:
     result = dict(machine=host, setup=setup, meshes=rows, builds=builds, contacts=contacts)
     (OUT / "realmeshes.json").write_text(json.dumps(result, indent=2))
     print(f"\n{seconds:.0f} s; wrote {OUT / 'realmeshes.json'}")
+    plot_builds(builds, OUT / "realmeshes_builds.png")
+
+
+def plot_builds(builds: list[dict], path: Path) -> None:
+    """Build seconds against triangles, ours and Coal's, log-log (needs matplotlib)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return
+    rows = sorted(
+        (b for b in builds if b.get("ours") and b.get("coal")), key=lambda b: b["triangles"]
+    )
+    if not rows:
+        return
+    n = [b["triangles"] for b in rows]
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    ax.loglog(n, [b["ours"]["seconds"] for b in rows], "o-", label="mrdem build_tree (2 threads)")
+    ax.loglog(n, [b["coal"]["seconds"] for b in rows], "s--", label="Coal OBBRSS build")
+    ax.set_xlabel("triangles")
+    ax.set_ylabel("build seconds (fresh process, no compile)")
+    ax.set_title("Tree builds on real meshes (one run)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":
