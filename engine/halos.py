@@ -44,7 +44,7 @@ import numpy as np
 from .errors import InvalidArgumentError
 from .inertia import tree_mesh
 from .mesh import Mesh
-from .tree import _ARRAYS, SurrogateTree, build_tree
+from .tree import SurrogateTree, build_tree
 
 __all__ = [
     "AUTO",
@@ -106,26 +106,13 @@ def check_epsilon(value) -> float | str | None:
 
 
 def shifted_tree(tree: SurrogateTree, leaf_epsilon: float) -> SurrogateTree:
-    """``tree`` with leaf ε = ``leaf_epsilon`` (> 0): the same read-only arrays except
-    ``epsilon (N,) float64``, each node's shifted by the change of the leaf ε (leaves get
-    ``leaf_epsilon`` exactly; surrogates ``max(ε_node − ε_leaf, 0) + leaf_epsilon``,
-    raised by 8 ulp so that rounding never makes a node less conservative). ``tree``
-    itself when the ε is its own. Shares the tree's geometry-only caches."""
-    leaf_epsilon = float(leaf_epsilon)
-    if leaf_epsilon == tree.leaf_epsilon:
-        return tree
-    # ε_node − ε_leaf loses up to half an ulp of the old ε: add a whole one back, then
-    # round the sum up too, so that no node is less conservative than a direct build's
-    geometric = np.maximum(tree.epsilon - tree.leaf_epsilon + np.spacing(tree.epsilon), 0.0)
-    epsilon = np.where(
-        tree.face >= 0, leaf_epsilon, (geometric + leaf_epsilon) * (1 + 8 * np.finfo(float).eps)
-    )
-    arrays = {name: getattr(tree, name) for name in _ARRAYS}
-    arrays["epsilon"] = epsilon
-    out = SurrogateTree(arrays, leaf_epsilon, tree.branching, tree.seed, tree.bounding_radius)
-    for name in _GEOMETRY_CACHES:
-        if name in tree.__dict__:
-            out.__dict__[name] = tree.__dict__[name]
+    """``tree`` at leaf ε = ``leaf_epsilon`` (:meth:`SurrogateTree.with_leaf_epsilon`),
+    sharing the tree's geometry-only caches; ``tree`` itself when the ε is its own."""
+    out = tree.with_leaf_epsilon(leaf_epsilon)
+    if out is not tree:
+        for name in _GEOMETRY_CACHES:
+            if name in tree.__dict__:
+                out.__dict__[name] = tree.__dict__[name]
     return out
 
 

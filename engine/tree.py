@@ -56,10 +56,9 @@ TREE_FORMAT = 2
 """Version of the ``.npz`` layout written by :meth:`SurrogateTree.save`."""
 _ARRAYS = ("triangles", "epsilon", "level", "parent", "first_child", "child_count", "face")
 _KMEANS_ITERATIONS = 20
-_FIT_SAMPLE = 128  # covered vertices (and 3x vertex-triangle pairs) in one fit's active set
+_FIT_SAMPLE = 128  # a large group's fit: its 128 farthest covered vertices + 128 drawn
 _MAX_THREADS = 8
-_PAIR_SAMPLE = 128
-_MIN_FIT = 2
+_PAIR_SAMPLE = 128  # and likewise of its vertex-triangle pairs (the size term)
 
 
 @dataclass(frozen=True)
@@ -113,6 +112,23 @@ class SurrogateTree:
     def is_leaf(self) -> np.ndarray:
         """(N,) bool — node is an original triangle."""
         return self.face >= 0
+
+    def with_leaf_epsilon(self, leaf_epsilon: float) -> SurrogateTree:
+        """This tree at leaf ε = ``leaf_epsilon`` (≥ 0): the same read-only arrays except
+        ``epsilon (N,) float64``, each node's shifted by the change of the leaf ε. A node's
+        ε is (largest distance of a covered vertex from its triangle) + leaf ε and the
+        triangles do not depend on the leaf ε, so the shift is as conservative as a build
+        at ``leaf_epsilon``: ε_node − ε_leaf loses up to half an ulp of the old ε, which
+        one ulp adds back, and the sum is rounded up by 8 ulp. Leaves get
+        ``leaf_epsilon`` exactly. Returns ``self`` when the ε is its own."""
+        leaf_epsilon = float(leaf_epsilon)
+        if leaf_epsilon == self.leaf_epsilon:
+            return self
+        geometric = np.maximum(self.epsilon - self.leaf_epsilon + np.spacing(self.epsilon), 0.0)
+        shifted = (geometric + leaf_epsilon) * (1 + 8 * np.finfo(float).eps)
+        arrays = {name: getattr(self, name) for name in _ARRAYS}
+        arrays["epsilon"] = np.where(self.face >= 0, leaf_epsilon, shifted)
+        return SurrogateTree(arrays, leaf_epsilon, self.branching, self.seed, self.bounding_radius)
 
     def children(self, node: int) -> np.ndarray:
         """Indices of the children of ``node`` (empty for a leaf)."""
@@ -214,7 +230,8 @@ def build_tree(
     mesh : Mesh
     epsilon : float — ε of the original triangles (the body's halo), ≥ 0
     branching : int — surrogates per split and most leaves per node (N_surrogate), ≥ 2
-    seed : int — k-means seed; equal inputs give identical trees
+    seed : int in [0, 2**53) — of k-means and the fit's samples; equal inputs give
+        identical trees
     fit : str or FitParameters — surrogate construction: a key of
         :data:`engine.surrogates.FITS` ("epsilon", fitted, the default; "paper", the
         paper's literal functional; "initial", the enclosing triangle unfitted) or
@@ -309,7 +326,7 @@ class _LevelBuilder:
         def call(lo, hi, thread):
             tb.surrogate_nodes(
                 self.vertices, self.faces, self.tris, order, starts, counts, node_ids,
-                self.epsilon, values, fit, _MIN_FIT, iterations, history, tolerance, _FIT_SAMPLE,
+                self.epsilon, values, fit, iterations, history, tolerance, _FIT_SAMPLE,
                 _PAIR_SAMPLE, self.seed, lo, hi, self.marks[thread], out_tris, out_eps,
             )  # fmt: skip
 

@@ -449,7 +449,7 @@ def _weighted_sample(key, size, state, stream):
 
 @njit(**JIT)
 def surrogate_nodes(
-    vertices, faces, tris, order, starts, counts, node_ids, leaf_epsilon, params, fit, min_fit,
+    vertices, faces, tris, order, starts, counts, node_ids, leaf_epsilon, params, fit,
     iterations, history, tolerance, sample, pair_sample, seed, lo, hi, mark, out_tris, out_eps,
 ):  # fmt: skip
     """Surrogate triangle and conservative ε of the groups ``lo … hi − 1`` of a level.
@@ -461,7 +461,7 @@ def surrogate_nodes(
     starts, counts, node_ids : (n,) int64 — segments and tree indices of the groups
     leaf_epsilon : float — ε of the original triangles; seed : int — the tree's seed
     params : (6,) float64 — the functional's parameters; ``fit`` False keeps the initial
-        triangle; min_fit — smallest group fitted; iterations, history, tolerance — L-BFGS;
+        triangle; iterations, history, tolerance — L-BFGS;
         sample, pair_sample — weighted-sample sizes (module docstring)
     mark : (V,) int64 — scratch of this call's thread: zeros, or as an earlier call left it
     out_tris : (n, 3, 3) float64, out_eps : (n,) float64 — written at rows lo … hi − 1
@@ -506,7 +506,7 @@ def surrogate_nodes(
         enclosing_triangle(points, summed, initial)
         eps = largest_distance(points, initial)
         out_tris[g] = initial
-        if fit and count >= min_fit:
+        if fit:
             state = _stream(seed, node_ids[g]) ^ _FIT_STREAM  # not k-means's draws
             _fit(
                 points, group, initial, params, iterations, history, tolerance, sample,
