@@ -1,4 +1,4 @@
-"""Benchmark of the broad phase (:func:`engine.broadphase.candidate_pairs`).
+"""Benchmark of the broad phase (:func:`engine.collision.broadphase.candidate_pairs`).
 
 Run: ``.venv/bin/python benchmarks/broadphase.py``. Prints a table and writes
 ``bench-results/broadphase.json``.
@@ -36,8 +36,8 @@ sys.path.insert(0, str(ROOT))
 
 from common import best_time, per_call  # noqa: E402
 
-import engine.broadphase as bp  # noqa: E402
-from engine.broadphase import _grid, candidate_pairs  # noqa: E402
+import engine.collision.broadphase as bp  # noqa: E402
+from engine.collision.broadphase import _grid, candidate_pairs  # noqa: E402
 
 OUT = ROOT / "bench-results"
 BRUTE_LIMIT = 25_000

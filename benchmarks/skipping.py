@@ -38,9 +38,9 @@ sys.path.insert(0, str(ROOT))
 import engine  # noqa: E402
 from engine import Pose, build_tree, find_contacts, scenarios, shapes  # noqa: E402
 from engine import scene as scene_module  # noqa: E402
-from engine.broadphase import overlapping_pairs  # noqa: E402
-from engine.contacts import spheres  # noqa: E402
-from engine.distance import triangle_distances  # noqa: E402
+from engine.collision.broadphase import overlapping_pairs  # noqa: E402
+from engine.collision.contacts import spheres  # noqa: E402
+from engine.geometry.distance import triangle_distances  # noqa: E402
 
 OUT = ROOT / "bench-results"
 GRID = (8, 8, 4)

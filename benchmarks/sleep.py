@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT))
 
 import engine  # noqa: E402
 from engine import PaperSpring, Scene, shapes  # noqa: E402
-from engine.sleep import Sleep  # noqa: E402
+from engine.dynamics.sleep import Sleep  # noqa: E402
 
 OUT = ROOT / "bench-results"
 SIDE = 8  # boxes per side

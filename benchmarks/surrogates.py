@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 import engine  # noqa: E402
 from engine import Pose, build_tree, find_contacts, shapes  # noqa: E402
-from engine.surrogates import (  # noqa: E402
+from engine.trees.surrogates import (  # noqa: E402
     FITS,
     enclosing_triangle,
     fit_triangle,

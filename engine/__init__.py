@@ -1,33 +1,56 @@
-"""mrdem engine: meshes, shapes, triangle-distance kernels, surrogate trees (pure computation).
+"""mrdem engine: meshes, surrogate trees, contact search and rigid-body dynamics (pure computation).
 
+Sub-packages by concern, each calling only those below it: :mod:`engine.geometry` (meshes,
+shapes, poses, triangle distances), :mod:`engine.trees` (surrogate trees),
+:mod:`engine.collision` (broad phase, contact searches, batches, proximity),
+:mod:`engine.dynamics` (force laws, mass properties, Picard, sleep), with
+:mod:`engine.scene` composing them; :mod:`engine.kernels` holds their Numba kernels.
 Never imports ``service`` or ``clients``.
 """
 
-from . import scenarios, shapes
-from .batch import ContactBatch, PairCache, TreeBank, find_contacts_batch
-from .broadphase import candidate_pairs
-from .contacts import ContactSet, ContactStats, find_contacts
-from .distance import (
+from engine import scenarios
+from engine.collision import (
+    ContactBatch,
+    ContactSet,
+    ContactStats,
+    MeshDistance,
+    PairCache,
+    TreeBank,
+    candidate_pairs,
+    find_contacts,
+    find_contacts_batch,
+    mesh_distance,
+)
+from engine.dynamics import (
+    ContactModel,
+    HertzSpring,
+    LinearSpring,
+    PaperSpring,
+    StepStats,
+    TunnellingWarning,
+)
+from engine.errors import EngineError, InvalidArgumentError, InvalidMeshError
+from engine.geometry import (
     DEFAULT_ITERATIONS,
     DEFAULT_PRECISION,
     KernelStats,
+    MassProperties,
+    Mesh,
     PairStatus,
+    Pose,
+    RepairReport,
     TriangleContacts,
     TriangleDistances,
     TriangleSet,
+    load_mesh,
+    repair_mesh,
+    shapes,
     triangle_contacts,
     triangle_distances,
 )
-from .errors import EngineError, InvalidArgumentError, InvalidMeshError
-from .forces import ContactModel, HertzSpring, LinearSpring, PaperSpring
-from .mesh import MassProperties, Mesh, load_mesh
-from .picard import StepStats, TunnellingWarning
-from .pose import Pose
-from .proximity import MeshDistance, mesh_distance
-from .repair import RepairReport, repair_mesh
-from .scene import DEFAULT_SCHEME, SCHEMES, Scene, SceneState
-from .tree import SurrogateTree, TreeStats, build_tree
-from .warmup import warmup
+from engine.scene import DEFAULT_SCHEME, SCHEMES, Scene, SceneState
+from engine.trees import SurrogateTree, TreeStats, build_tree
+from engine.warmup import warmup
 
 __all__ = [
     "ContactSet",

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InvalidArgumentError
-from .kernels import triangle_batch as tb
+from engine.errors import InvalidArgumentError
+from engine.kernels.geometry import triangle_batch as tb
 
 __all__ = [
     "BAND_ULPS",

@@ -20,8 +20,8 @@ def _info() -> dict:
     import numba
     import numpy as np
 
-    from .distance import DEFAULT_ITERATIONS
-    from .kernels.jit import KERNEL_SOURCE_HASH
+    from engine.geometry.distance import DEFAULT_ITERATIONS
+    from engine.kernels.jit import KERNEL_SOURCE_HASH
 
     return {
         "python": platform.python_version(),
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "info":
         print(json.dumps(_info(), indent=2))
     elif args.command == "warmup":
-        from .warmup import warmup
+        from engine.warmup import warmup
 
         print(f"kernels ready in {warmup():.2f} s")
     return 0

@@ -13,12 +13,12 @@ import math
 import numpy as np
 import trimesh
 
-from .errors import InvalidArgumentError
-from .forces import ContactModel, PaperSpring
-from .halos import size_epsilon
-from .mesh import Mesh
-from .scene import Scene
-from .shapes import PAPER_UV_SPHERES, icosphere, paper_sphere
+from engine.dynamics.forces import ContactModel, PaperSpring
+from engine.errors import InvalidArgumentError
+from engine.geometry.mesh import Mesh
+from engine.geometry.shapes import PAPER_UV_SPHERES, icosphere, paper_sphere
+from engine.scene import Scene
+from engine.trees.halos import size_epsilon
 
 __all__ = ["particle_on_plane", "particle_particle", "scale_difference", "sphere_grid", "sphere"]
 

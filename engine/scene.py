@@ -5,16 +5,16 @@ quaternions ``orientations (n, 4)`` (w, x, y, z), world-frame ``velocities`` and
 ``angular_velocities (n, 3)`` — plus per-body mass, body-frame inertia about the centre
 of mass, a fixed flag and an external force. Bodies share surrogate trees (instancing):
 a mesh is built once and its tree shifted to every other ε it is given
-(:mod:`engine.halos`), and a body stores only the index of its tree and the offset of its
+(:mod:`engine.trees.halos`), and a body stores only the index of its tree and the offset of its
 centre of mass in the mesh frame. Planes and walls are fixed bodies (infinite mass). Mass
 properties: exact for closed meshes, from the convex hull of open ones, or given
-(:mod:`engine.inertia`), their source in ``mass_source (n,) str`` ("mesh", "convex_hull",
-"given", "fixed"); ε defaults: :mod:`engine.halos`.
+(:mod:`engine.dynamics.inertia`), their source in ``mass_source (n,) str`` ("mesh", "convex_hull",
+"given", "fixed"); ε defaults: :mod:`engine.trees.halos`.
 
 Contacts of a configuration: bounding spheres of the trees' roots go through the broad
 phase (never a fixed–fixed pair); the candidate pairs go through the multiresolution
-search in one batched call (:class:`~engine.batch.TreeBank`), or the flat search pair by
-pair. Time stepping lives in :mod:`engine.picard`.
+search in one batched call (:class:`~engine.collision.batch.TreeBank`), or the flat search pair by
+pair. Time stepping lives in :mod:`engine.dynamics.picard`.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .arguments import (
+from engine.arguments import (
     check_kernel,
     check_precision,
     check_quaternions,
@@ -32,21 +32,21 @@ from .arguments import (
     check_vector,
     coordinate_limit,
 )
-from .batch import PairCache, TreeBank
-from .broadphase import overlapping_pairs
-from .contacts import find_contacts, spheres
-from .distance import DEFAULT_PRECISION
-from .errors import InvalidArgumentError
-from .forces import ContactModel, PaperSpring
-from .halos import DEFAULT_RELATIVE_EPSILON, SceneTrees, check_epsilon
-from .inertia import body_mass, fixed_center
-from .kernels import batch as kb
-from .kernels import dynamics as kd
-from .mesh import Mesh
-from .pose import Pose
-from .shapes import plane
-from .sleep import Sleep
-from .tree import SurrogateTree
+from engine.collision.batch import PairCache, TreeBank
+from engine.collision.broadphase import overlapping_pairs
+from engine.collision.contacts import find_contacts
+from engine.dynamics.forces import ContactModel, PaperSpring
+from engine.dynamics.inertia import body_mass, fixed_center
+from engine.dynamics.sleep import Sleep
+from engine.errors import InvalidArgumentError
+from engine.geometry.distance import DEFAULT_PRECISION
+from engine.geometry.mesh import Mesh
+from engine.geometry.pose import Pose
+from engine.geometry.shapes import plane
+from engine.kernels.collision import batch as kb
+from engine.kernels.dynamics import motion as kd
+from engine.trees.halos import DEFAULT_RELATIVE_EPSILON, SceneTrees, check_epsilon
+from engine.trees.tree import SurrogateTree
 
 __all__ = ["DEFAULT_RELATIVE_EPSILON", "SCHEMES", "Scene", "SceneState"]
 
@@ -111,7 +111,7 @@ class Scene:
     Parameters
     ----------
     gravity : (3,) float — acceleration of every free body (default −9.81 along z)
-    contact_model : ContactModel — force law (default :class:`~engine.forces.PaperSpring`)
+    contact_model : ContactModel — force law (default :class:`~engine.dynamics.forces.PaperSpring`)
     scheme : str — default time-stepping scheme, one of :data:`SCHEMES` (default
         :data:`DEFAULT_SCHEME`, the implicit midpoint rule)
     kernel, precision : the contact search's leaf kernel and arithmetic (default hybrid in
@@ -122,13 +122,13 @@ class Scene:
     max_halvings : int — a step whose Picard iteration does not converge is redone as two
         half steps, at most this deep (0: report the failure in the step's stats only)
     threads : int, optional — worker threads of the narrow phase (default: all cores)
-    sleep : bool or Sleep — let bodies at rest sleep (:mod:`engine.sleep`; off by default)
+    sleep : bool or Sleep — let bodies at rest sleep (:mod:`engine.dynamics.sleep`; off by default)
     substeps : bool — split a step in which some body's surface would move by more than its
         ε into as many equal sub-steps as that takes (else a ``TunnellingWarning``; see
-        :func:`engine.picard.travel`)
+        :func:`engine.dynamics.picard.travel`)
     skin : float — the multiresolution search keeps, per body pair, the leaf pairs within
         ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
-        by less than that skin (:class:`~engine.batch.PairCache`: exactly the same
+        by less than that skin (:class:`~engine.collision.batch.PairCache`: exactly the same
         contacts); 0 searches every configuration from the roots
     """
 
@@ -171,10 +171,10 @@ class Scene:
         if sleep is True:
             sleep = Sleep()
         if sleep is not False and sleep is not None and not isinstance(sleep, Sleep):
-            raise InvalidArgumentError("sleep must be a bool or an engine.sleep.Sleep")
+            raise InvalidArgumentError("sleep must be a bool or an engine.dynamics.sleep.Sleep")
         self.sleep = sleep or None
         self.time = 0.0
-        self._trees = SceneTrees()  # each mesh built once, shifted per ε (engine.halos)
+        self._trees = SceneTrees()  # each mesh built once, shifted per ε (engine.trees.halos)
         self._bank: TreeBank | None = None
         self._multiscale = None
         self.pair_cache = PairCache(skin)
@@ -191,7 +191,7 @@ class Scene:
         self.tree_index = np.zeros(n, np.int64)
         self.fixed = np.zeros(n, bool)
         self.external_forces = np.zeros((n, 3))
-        self.mass_source = np.zeros(n, "<U11")  # engine.inertia.MASS_SOURCES
+        self.mass_source = np.zeros(n, "<U11")  # engine.dynamics.inertia.MASS_SOURCES
 
     # ------------------------------------------------------------------ building
     def __len__(self) -> int:
@@ -216,7 +216,7 @@ class Scene:
         Parameters
         ----------
         body : Mesh or SurrogateTree — one tree per mesh (or tree) is kept and shifted to
-            every ε its bodies are given (:func:`engine.halos.shifted_tree`)
+            every ε its bodies are given (:meth:`SurrogateTree.with_leaf_epsilon`)
         position : (3,) — world position of the centre of mass (of the mesh-frame origin
             for a fixed open mesh)
         orientation : (4,) — unit quaternion (w, x, y, z)
@@ -224,14 +224,14 @@ class Scene:
         density, mass : float — at most one; default density 1 (ignored for fixed bodies)
         fixed : bool — immovable (infinite mass)
         epsilon : float, "auto" or None — the body's ε. None: a mesh gets the default rule
-            (:mod:`engine.halos`: a free body 0.4 % of its diameter; a fixed body a tenth
+            (:mod:`engine.trees.halos`: a free body 0.4 % of its diameter; a fixed body a tenth
             of the smallest free body's ε, at most its own size default, resolved again
             whenever bodies are added), a tree keeps its own leaf ε; "auto": the default
             rule for a tree too; a number: that ε (a tree is shifted to it)
         inertia : (3, 3) or (3,) array_like, optional — inertia tensor about the centre of
             mass (mesh axes) or principal moments; needs ``mass``; a free body's mass
             properties otherwise come from its closed mesh or, for an open mesh, its convex
-            hull (:mod:`engine.inertia`; the source is in :attr:`mass_source`)
+            hull (:mod:`engine.dynamics.inertia`; the source is in :attr:`mass_source`)
         center_of_mass : (3,) array_like, optional — mesh frame; needs ``mass``
         """
         pose = Pose(position, orientation)  # validates both
@@ -333,7 +333,7 @@ class Scene:
     ) -> int:
         """Add a fixed square plane of side ``size`` centred at ``point``, facing ``normal``
         (2·divisions² triangles); returns its index. ``epsilon`` None: the fixed bodies'
-        default rule (:mod:`engine.halos`: a tenth of the smallest free body's ε)."""
+        default rule (:mod:`engine.trees.halos`: a tenth of the smallest free body's ε)."""
         n = check_vector(normal, 3, "normal")
         length = float(np.linalg.norm(n))
         if length == 0:
@@ -400,8 +400,8 @@ class Scene:
     # ------------------------------------------------------------------ stepping
     def step(self, dt: float, scheme: str | None = None):
         """Advance by ``dt`` with ``scheme`` (default: the scene's); returns the step's
-        :class:`~engine.picard.StepStats`."""
-        from .picard import step
+        :class:`~engine.dynamics.picard.StepStats`."""
+        from engine.dynamics.picard import step
 
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0):
@@ -454,7 +454,7 @@ class Scene:
         are the same (adding bodies replaces ``tree_index``)."""
         cached = self.__dict__.get("_root_spheres")
         if cached is None or cached[0] is not self.tree_index:
-            roots = np.array([spheres(t)[0] for t in self.trees])[self.tree_index]
+            roots = np.array([t.views.spheres[0] for t in self.trees])[self.tree_index]
             cached = self._root_spheres = (self.tree_index, roots)
         return cached[1]
 
@@ -526,10 +526,10 @@ class Scene:
 
     @property
     def multiscale(self):
-        """The :class:`~engine.multiscale.MultiscaleSearch` whose fronts persist across
+        """The :class:`~engine.collision.multiscale.MultiscaleSearch` whose fronts persist across
         this scene's steps."""
         if self._multiscale is None:
-            from .multiscale import MultiscaleSearch
+            from engine.collision.multiscale import MultiscaleSearch
 
             self._multiscale = MultiscaleSearch(self)
         return self._multiscale

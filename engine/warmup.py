@@ -7,17 +7,17 @@ import warnings
 
 import numpy as np
 
-from .arguments import KERNELS, PRECISIONS
-from .batch import find_contacts_batch
-from .broadphase import SMALL_SCENE, candidate_pairs
-from .contacts import find_contacts
-from .distance import TriangleSet, triangle_contacts, triangle_distances
-from .picard import TunnellingWarning
-from .pose import Pose
-from .scene import SCHEMES, Scene
-from .shapes import box
-from .surrogates import FITS
-from .tree import build_tree
+from engine.arguments import KERNELS, PRECISIONS
+from engine.collision.batch import find_contacts_batch
+from engine.collision.broadphase import SMALL_SCENE, candidate_pairs
+from engine.collision.contacts import find_contacts
+from engine.dynamics.picard import TunnellingWarning
+from engine.geometry.distance import TriangleSet, triangle_contacts, triangle_distances
+from engine.geometry.pose import Pose
+from engine.geometry.shapes import box
+from engine.scene import SCHEMES, Scene
+from engine.trees.surrogates import FITS
+from engine.trees.tree import build_tree
 
 __all__ = ["warmup"]
 

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine import EngineError, Mesh, build_tree
-from engine.tree import TREE_FORMAT
+from engine.trees.tree import TREE_FORMAT
 
 from .store import ACTIVE, Store
 

@@ -8,11 +8,11 @@ then the planes (fixed).
 
 Body ε: a number in the body's spec is that body's ε (its tree shifted to it); none keeps
 the ε the mesh was uploaded with, except for meshes uploaded without one, whose bodies get
-``"auto"`` (the engine's default rule, :mod:`engine.halos`: a fixed body takes a tenth of
+``"auto"`` (the engine's default rule, :mod:`engine.trees.halos`: a fixed body takes a tenth of
 the smallest free body's ε) when the scene is created (:func:`apply_mesh_defaults`). The
 planes' ``"epsilon"``: a number, or none (or ``"auto"``) for the same rule. Mass
 properties: ``density`` or ``mass``, with optional ``inertia`` and ``center_of_mass``
-(:mod:`engine.inertia`).
+(:mod:`engine.dynamics.inertia`).
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from engine import (
     Scene,
 )
 from engine.arguments import KERNELS
-from engine.halos import AUTO
-from engine.inertia import check_inertia
+from engine.dynamics.inertia import check_inertia
+from engine.trees.halos import AUTO
 
 from .errors import NotFound, Unprocessable
 from .inputs import array, choice, flag, number, quaternion

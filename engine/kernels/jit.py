@@ -20,7 +20,7 @@ anything is compiled. The checks run once per loop, not per pair.
 Numba's on-disk cache is keyed on the timestamp of the file that defines a
 kernel, but these kernels inline helpers from sibling files: an edit there
 would leave stale machine code in use. The cache directory therefore carries
-a hash of the whole ``engine/kernels`` source (``$NUMBA_CACHE_DIR``, else
+a hash of the whole ``engine/kernels`` source, every sub-folder included (``$NUMBA_CACHE_DIR``, else
 ``~/.cache/mrdem/numba``, then ``kernels-<hash>``).
 """
 
@@ -37,8 +37,9 @@ from numba.extending import intrinsic
 
 def _source_hash() -> str:
     digest = hashlib.sha256()
-    for path in sorted(Path(__file__).parent.glob("*.py")):
-        digest.update(path.name.encode())
+    root = Path(__file__).parent
+    for path in sorted(root.rglob("*.py")):  # every kernel folder: helpers inline across them
+        digest.update(path.relative_to(root).as_posix().encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
 

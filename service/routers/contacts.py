@@ -25,7 +25,7 @@ from fastapi import APIRouter, Depends, Request
 
 from engine import DEFAULT_PRECISION, Pose, find_contacts_batch
 from engine.arguments import KERNELS, PRECISIONS
-from engine.kernels import batch as kb
+from engine.kernels.collision import batch as kb
 
 from ..auth import owner_of
 from ..codecs import decode, respond

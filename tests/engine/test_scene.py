@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from engine import InvalidArgumentError, Scene, build_tree, scenarios, shapes
-from engine.halos import DEFAULT_RELATIVE_EPSILON
+from engine.trees.halos import DEFAULT_RELATIVE_EPSILON
 
 SPHERE = shapes.icosphere(1, radius=0.5)
 

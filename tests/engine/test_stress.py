@@ -223,7 +223,7 @@ def test_a_resting_stack_stays_put(scheme):
 def test_a_resting_stack_stays_put_for_100k_steps(scheme):
     """Found by this test: at step 68,156 the implicit iterates flipped between two merged
     contact sets (32 and 33 contacts) for all 50 iterations; Picard now settles on such a
-    switch (``engine.picard._switch``) and every step converges."""
+    switch (``engine.dynamics.picard._switch``) and every step converges."""
     _long_resting_run(scheme, 100_000)
 
 
@@ -241,7 +241,7 @@ def test_picard_settles_on_a_contact_set_switch_and_only_there():
     """Computed forces that alternate between two states A and B, with the applied forces
     between them, are a settled step; a third state, too few iterations, or applied forces
     off the segment A–B are not."""
-    from engine.picard import _switch
+    from engine.dynamics.picard import _switch
 
     scene = _stack("implicit-surrogate")
     rng = np.random.default_rng(3)

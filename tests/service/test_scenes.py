@@ -9,7 +9,7 @@ import pytest
 from harness import ServiceProcess, assert_problem, msgpack_body, post_msgpack
 
 from engine import Mesh, Scene, build_tree, shapes
-from engine.halos import FIXED_EPSILON_FRACTION, size_epsilon
+from engine.trees.halos import FIXED_EPSILON_FRACTION, size_epsilon
 
 STATE = ("positions", "orientations", "velocities", "angular_velocities")
 

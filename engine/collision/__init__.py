@@ -1,0 +1,19 @@
+"""Collision: broad phase, the flat and multiresolution contact searches, batches, proximity."""
+
+from engine.collision.batch import ContactBatch, PairCache, TreeBank, find_contacts_batch
+from engine.collision.broadphase import candidate_pairs
+from engine.collision.contacts import ContactSet, ContactStats, find_contacts
+from engine.collision.proximity import MeshDistance, mesh_distance
+
+__all__ = [
+    "ContactBatch",
+    "ContactSet",
+    "ContactStats",
+    "MeshDistance",
+    "PairCache",
+    "TreeBank",
+    "candidate_pairs",
+    "find_contacts",
+    "find_contacts_batch",
+    "mesh_distance",
+]

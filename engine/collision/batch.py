@@ -1,0 +1,423 @@
+"""Contacts of many body pairs in one call (the narrow phase of a scene).
+
+A :class:`TreeBank` holds several surrogate trees concatenated in one precision;
+:meth:`TreeBank.find_contacts` runs the multiresolution search of every listed body
+pair inside Numba (worker threads over chunks of pairs; the kernels release the
+GIL) and returns ragged results (:class:`ContactBatch`). :func:`find_contacts_batch`
+is the convenience form over ``(tree_a, pose_a, tree_b, pose_b)`` tuples.
+
+Each pair's result is exactly what :func:`~engine.collision.contacts.find_contacts` returns for
+it: both run the same ``query_kernel`` on the same arrays and poses.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.arguments import check_kernel, check_precision, check_quaternions, check_rows
+from engine.collision.contacts import (
+    TINY,
+    ULP,
+    ContactSet,
+    ContactStats,
+    find_contacts,
+    query_parameters,
+)
+from engine.errors import InvalidArgumentError
+from engine.geometry.distance import DEFAULT_PRECISION
+from engine.geometry.pose import Pose
+from engine.kernels.collision import batch as kb
+from engine.trees.tree import SurrogateTree
+from engine.workers import worker_pool
+
+__all__ = ["ContactBatch", "TreeBank", "find_contacts_batch"]
+
+MAX_LEVELS = 32
+"""Per-level comparison counts kept per pair (deeper levels are counted, not kept)."""
+_PAIRS_PER_TASK = 64  # below this many pairs per worker, one thread is faster
+_CPUS = os.cpu_count() or 1  # looked up once: os.cpu_count() costs µs per call
+
+
+@dataclass(frozen=True)
+class ContactBatch:
+    """Contacts of ``k`` body pairs, ragged (CSR): pair ``q`` owns
+    ``pairs[pair_offsets[q]:pair_offsets[q + 1]]`` and
+    ``points/normals/overlaps[contact_offsets[q]:contact_offsets[q + 1]]``.
+
+    pair_offsets, contact_offsets : (k + 1,) int64
+    pairs : (m, 2) int64 — (face of A, face of B) per pair, sorted within each pair
+    points, normals : (c, 3) float64 — world frame; normals unit, from A to B
+    overlaps : (c,) float64
+    levels : (k, MAX_LEVELS) int64 — comparisons per level of each pair
+    counts : (k, 7) int64 — depth, unfoldings, iterative, fallbacks, comparisons,
+        node pairs pruned by bounding spheres, 1 if the pair's cached list served
+    """
+
+    pair_offsets: np.ndarray
+    pairs: np.ndarray
+    contact_offsets: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    overlaps: np.ndarray
+    levels: np.ndarray
+    counts: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pair_offsets) - 1
+
+    def __getitem__(self, q: int) -> ContactSet:
+        """Pair ``q`` as a :class:`~engine.collision.contacts.ContactSet`."""
+        q = range(len(self))[q]
+        p0, p1 = self.pair_offsets[q], self.pair_offsets[q + 1]
+        c0, c1 = self.contact_offsets[q], self.contact_offsets[q + 1]
+        depth = min(int(self.counts[q, kb.COUNT_DEPTH]), MAX_LEVELS)
+        stats = ContactStats(
+            tuple(self.levels[q, :depth].tolist()),
+            int(self.counts[q, kb.COUNT_ITERATIVE]),
+            int(self.counts[q, kb.COUNT_FALLBACKS]),
+            int(self.counts[q, kb.COUNT_UNFOLDINGS]),
+            int(p1 - p0),
+            int(c1 - c0),
+            int(self.counts[q, kb.COUNT_SPHERES]),
+        )
+        return ContactSet(
+            self.pairs[p0:p1],
+            self.points[c0:c1],
+            self.normals[c0:c1],
+            self.overlaps[c0:c1],
+            stats,
+        )
+
+    @property
+    def comparisons(self) -> int:
+        """Triangle comparisons over all pairs."""
+        return int(self.counts[:, kb.COUNT_COMPARISONS].sum())
+
+
+class PairCache:
+    """Leaf pairs near contact kept per body pair between searches (a Verlet list).
+
+    For each cached pair: the leaf pairs within ε_a + ε_b + s at a reference pose of B
+    relative to A, s = ``skin``·(ε_a + ε_b). While no point of B has moved by s or more
+    relative to A since then, every leaf pair in contact is on the list (a pair at
+    distance ≤ ε_a + ε_b now was within ε_a + ε_b + s then), so evaluating the list
+    alone gives exactly the traversal's contacts — bit for bit, with the same kernels on
+    the same moved triangles. Past that, the pair is traversed again (with ε grown by
+    s/2 per body) and its list renewed. Entries are keyed by an integer per body pair
+    chosen by the caller; a search keeps exactly the entries of the pairs it was asked.
+
+    Attributes
+    ----------
+    skin : float — s relative to the pair's ε_a + ε_b (0: no caching)
+    keys : (m,) int64 sorted; rotations (m, 3, 3), shifts (m, 3) float64 — reference poses
+    offsets : (m + 1,) int64; near : (L, 2) int64 — the lists (node pairs), CSR
+    """
+
+    def __init__(self, skin: float = 0.5) -> None:
+        skin = float(skin)
+        if not (np.isfinite(skin) and skin >= 0):
+            raise InvalidArgumentError(f"skin must be finite and >= 0, got {skin}")
+        self.skin = skin
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget every list."""
+        self.keys = np.zeros(0, np.int64)
+        self.rotations = np.zeros((0, 3, 3))
+        self.shifts = np.zeros((0, 3))
+        self.offsets = np.zeros(1, np.int64)
+        self.near = np.zeros((0, 2), np.int64)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(
+            a.nbytes for a in (self.keys, self.rotations, self.shifts, self.offsets, self.near)
+        )
+
+    def _slots(self, keys: np.ndarray) -> np.ndarray:
+        """(k,) int64 entry of each key, −1 where none."""
+        at = np.searchsorted(self.keys, keys)
+        hit = at < len(self.keys)
+        hit[hit] = self.keys[at[hit]] == keys[hit]
+        return np.where(hit, at, -1).astype(np.int64)
+
+    def _arrays(self, slots: np.ndarray) -> tuple:
+        return (self.skin, slots, self.rotations, self.shifts, self.offsets, self.near)
+
+    def _replace(self, keys: np.ndarray, slots: np.ndarray, kept: np.ndarray, batch) -> None:
+        """Hold exactly the pairs ``keys (k,)``: entry ``slots[q]`` where ``kept[q]`` (the
+        query used its list, which stays valid), else the query's new list in ``batch``."""
+        near_offsets, near, rotations, shifts = batch
+        if kept.all() and np.array_equal(keys, self.keys):
+            return  # the same pairs, every list kept: nothing to copy
+        order = np.argsort(keys, kind="stable")
+        slots, kept = slots[order], kept[order]
+        fresh = np.diff(near_offsets)[order]
+        sizes = np.where(kept, self.offsets[slots + 1] - self.offsets[slots], fresh)
+        offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        source = np.where(kept, self.offsets[slots], near_offsets[:-1][order])
+        rows = np.repeat(source - offsets[:-1], sizes) + np.arange(int(offsets[-1]))
+        old = np.repeat(kept, sizes)
+        lists = np.empty((int(offsets[-1]), 2), np.int64)
+        lists[old] = self.near[rows[old]]
+        lists[~old] = near[rows[~old]]
+        self.keys = np.ascontiguousarray(keys[order], np.int64)
+        self.rotations = rotations[order]
+        self.shifts = shifts[order]
+        self.offsets, self.near = offsets, lists
+
+
+_NO_CACHE = (
+    0.0,
+    np.zeros(0, np.int64),
+    np.zeros((0, 3, 3)),
+    np.zeros((0, 3)),
+    np.zeros(1, np.int64),
+    np.zeros((0, 2), np.int64),
+)
+
+
+class TreeBank:
+    """Surrogate trees concatenated for batched queries, in one precision.
+
+    Parameters
+    ----------
+    trees : sequence of SurrogateTree — referred to by position in queries
+    precision : "float32" or "float64"
+    """
+
+    def __init__(self, trees: Sequence[SurrogateTree], precision: str = DEFAULT_PRECISION) -> None:
+        check_precision(precision)
+        trees = list(trees)
+        if not trees:
+            raise InvalidArgumentError("a TreeBank needs at least one tree")
+        for t, tree in enumerate(trees):
+            if not isinstance(tree, SurrogateTree):
+                raise InvalidArgumentError(f"trees[{t}] must be a SurrogateTree")
+        self.trees, self.precision = trees, precision
+        self.dtype = np.dtype(precision).type
+        sets = [t.views.geometry.node_set(precision, False) for t in trees]
+        masters = [t.views.geometry.master for t in trees]
+        self.bank = (
+            np.concatenate([s.coords_rm for s in sets]),
+            np.concatenate([s.frames_rm for s in sets]),
+            np.concatenate([m.coords_rm for m in masters]),
+            np.concatenate([m.frames_rm for m in masters]),
+            np.concatenate([t.epsilon for t in trees]),
+            np.concatenate([t.face for t in trees]),
+            np.concatenate([t.first_child for t in trees]),
+            np.concatenate([t.child_count for t in trees]),
+            np.concatenate([t.views.geometry.face_normals for t in trees]),
+            np.concatenate([t.views.spheres for t in trees]),
+        )
+        nodes = np.array([len(t) for t in trees], np.int64)
+        faces = np.array([len(t.views.geometry.face_normals) for t in trees], np.int64)
+        self.meta = (
+            np.concatenate([[0], np.cumsum(nodes)[:-1]]).astype(np.int64),
+            nodes,
+            np.concatenate([[0], np.cumsum(faces)[:-1]]).astype(np.int64),
+            faces,
+            np.array([t.leaf_epsilon for t in trees]),
+            np.array([t.bounding_radius for t in trees]),
+            np.array([t.views.geometry.extent for t in trees]),
+        )
+
+    def __len__(self) -> int:
+        return len(self.trees)
+
+    def find_contacts(
+        self,
+        tree_a: np.ndarray,
+        position_a: np.ndarray,
+        orientation_a: np.ndarray,
+        tree_b: np.ndarray,
+        position_b: np.ndarray,
+        orientation_b: np.ndarray,
+        kernel: str = "hybrid",
+        threads: int | None = None,
+        cache: PairCache | None = None,
+        keys: np.ndarray | None = None,
+    ) -> ContactBatch:
+        """Multiresolution contacts of ``k`` body pairs.
+
+        Parameters
+        ----------
+        tree_a, tree_b : (k,) int — bank positions of each pair's trees
+        position_a, position_b : (k, 3) float64
+        orientation_a, orientation_b : (k, 4) float64 — unit quaternions (w, x, y, z);
+            norms within 1e-6 of 1 are renormalised
+        kernel : "exact", "iterative" or "hybrid" — for leaf pairs
+        threads : int, optional — worker threads (default: all cores)
+        cache : PairCache, optional — lists kept between calls, with ``keys (k,)`` int64
+            naming each pair (distinct); the cache then holds exactly these pairs
+
+        Returns
+        -------
+        ContactBatch
+        """
+        check_kernel(kernel)
+        k = _count(tree_a, "tree_a")
+        if cache is not None:
+            keys = np.asarray(keys)
+            if keys.shape != (k,) or (k and not np.issubdtype(keys.dtype, np.integer)):
+                raise InvalidArgumentError(f"keys must be {k} integers naming the pairs")
+            keys = keys.astype(np.int64)
+            if len(np.unique(keys)) != k:
+                raise InvalidArgumentError("keys must be distinct")
+        queries = (
+            _indices(tree_a, k, len(self), "tree_a"),
+            _indices(tree_b, k, len(self), "tree_b"),
+            check_rows(position_a, k, 3, "position_a"),
+            check_quaternions(orientation_a, k, "orientation_a"),
+            check_rows(position_b, k, 3, "position_b"),
+            check_quaternions(orientation_b, k, "orientation_b"),
+        )
+        return self._run(queries, kernel, threads, cache, keys)
+
+    def _run(self, queries: tuple, kernel: str, threads: int | None, cache=None, keys=None):
+        """The query arrays validated (see :meth:`find_contacts`)."""
+        k = len(queries[0])
+        slots = None if cache is None else cache._slots(keys)
+        arrays = _NO_CACHE if cache is None else cache._arrays(slots)
+        coarse, leaf = query_parameters(kernel, self.dtype)
+        params = (coarse, leaf, kernel != "iterative", ULP[self.dtype], TINY)
+        counts = np.zeros((k, kb.N_COUNTS), np.int64)
+        levels = np.zeros((k, MAX_LEVELS), np.int64)
+
+        def run(start: int, stop: int):
+            return kb.batch_kernel(
+                self.bank,
+                self.meta,
+                queries,
+                params,
+                arrays,
+                start,
+                stop,
+                counts[start:stop],
+                levels[start:stop],
+            )
+
+        threads = threads or _CPUS
+        if threads == 1 or k < 2 * _PAIRS_PER_TASK:
+            parts = [run(0, k)]
+        else:
+            bounds = np.linspace(0, k, min(k // _PAIRS_PER_TASK, 4 * threads) + 1).astype(int)
+            pool = worker_pool(int(threads))
+            futures = [
+                pool.submit(run, int(s), int(e))
+                for s, e in zip(bounds[:-1], bounds[1:], strict=True)
+            ]
+            parts = [f.result() for f in futures]
+        batch = _join(parts, counts, levels)
+        if cache is not None:
+            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, _join_lists(parts))
+        return batch
+
+
+def find_contacts_batch(
+    queries: Sequence[tuple[SurrogateTree, Pose, SurrogateTree, Pose]],
+    kernel: str = "hybrid",
+    hierarchy: bool = True,
+    precision: str = DEFAULT_PRECISION,
+    threads: int | None = None,
+) -> list[ContactSet]:
+    """:func:`~engine.collision.find_contacts` for many ``(tree_a, pose_a, tree_b, pose_b)``.
+
+    With ``hierarchy=True`` the pairs run in Numba over a :class:`TreeBank` of the
+    distinct trees (worker threads); ``hierarchy=False`` runs the flat search pair by
+    pair. Returns one :class:`~engine.collision.contacts.ContactSet` per query, in order.
+    """
+    check_kernel(kernel), check_precision(precision)
+    queries = list(queries)
+    for q, item in enumerate(queries):
+        ok = isinstance(item, tuple | list) and len(item) == 4
+        if not (ok and all(isinstance(x, Pose) for x in item[1::2])) or not all(
+            isinstance(x, SurrogateTree) for x in item[::2]
+        ):
+            raise InvalidArgumentError(f"queries[{q}] must be (tree_a, pose_a, tree_b, pose_b)")
+    if not hierarchy:
+        return [
+            find_contacts(*item, kernel=kernel, hierarchy=False, precision=precision)
+            for item in queries
+        ]
+    if not queries:
+        return []
+    index: dict[int, int] = {}
+    trees = []
+    for item in queries:
+        for tree in item[::2]:
+            if id(tree) not in index:
+                index[id(tree)] = len(trees)
+                trees.append(tree)
+    bank = TreeBank(trees, precision)
+    # poses are validated and normalised already: passed on bit for bit, as the single
+    # query passes them
+    arrays = (
+        np.array([index[id(item[0])] for item in queries], np.int64),
+        np.array([index[id(item[2])] for item in queries], np.int64),
+        np.array([item[1].position for item in queries]),
+        np.array([item[1].orientation for item in queries]),
+        np.array([item[3].position for item in queries]),
+        np.array([item[3].orientation for item in queries]),
+    )
+    batch = bank._run(arrays, kernel, threads)
+    return [batch[q] for q in range(len(batch))]
+
+
+def _join(parts, counts, levels) -> ContactBatch:
+    """Concatenate the ragged results of consecutive chunks (one chunk: as it is)."""
+    if len(parts) == 1:
+        p = parts[0]
+        return ContactBatch(p[0], p[1], p[2], p[3], p[4], p[5], levels, counts)
+    pair_offsets, contact_offsets = [np.zeros(1, np.int64)], [np.zeros(1, np.int64)]
+    for part in parts:
+        pair_offsets.append(part[0][1:] + pair_offsets[-1][-1])
+        contact_offsets.append(part[2][1:] + contact_offsets[-1][-1])
+    return ContactBatch(
+        np.concatenate(pair_offsets),
+        np.concatenate([p[1] for p in parts]),
+        np.concatenate(contact_offsets),
+        np.concatenate([p[3] for p in parts]),
+        np.concatenate([p[4] for p in parts]),
+        np.concatenate([p[5] for p in parts]),
+        levels,
+        counts,
+    )
+
+
+def _join_lists(parts) -> tuple:
+    """The chunks' lists and reference poses, concatenated (see :class:`PairCache`)."""
+    if len(parts) == 1:
+        return parts[0][6:10]
+    offsets = [np.zeros(1, np.int64)]
+    for part in parts:
+        offsets.append(part[6][1:] + offsets[-1][-1])
+    return (
+        np.concatenate(offsets),
+        np.concatenate([p[7] for p in parts]),
+        np.concatenate([p[8] for p in parts]),
+        np.concatenate([p[9] for p in parts]),
+    )
+
+
+def _count(values, name: str) -> int:
+    arr = np.asarray(values)
+    if arr.ndim != 1:
+        raise InvalidArgumentError(f"{name} must be a 1-D array of tree positions")
+    return len(arr)
+
+
+def _indices(values, k: int, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(values)
+    if arr.shape != (k,) or (k and not np.issubdtype(arr.dtype, np.integer)):
+        raise InvalidArgumentError(f"{name} must be {k} integer tree positions")
+    if k and (arr.min() < 0 or arr.max() >= n):
+        raise InvalidArgumentError(f"{name} refers to a tree outside the bank (0 … {n - 1})")
+    return np.ascontiguousarray(arr, dtype=np.int64)

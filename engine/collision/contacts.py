@@ -1,0 +1,356 @@
+"""Contact detection between two posed bodies (paper §2, §5.1): flat and multiresolution.
+
+Every query runs in body A's frame (a pair-local frame): B's tree is moved by the
+relative pose ``pose_a⁻¹ ∘ pose_b``, so coordinates stay small wherever the bodies are.
+
+Multiresolution search (``hierarchy=True``) keeps a **front of node pairs**, starting
+at the two roots, and streams each level's front through one listed kernel call:
+
+* a pair with a surrogate is evaluated with the iterative kernel (exact if
+  ``kernel="exact"``); "no contact" prunes both subtrees, "contact" or "not
+  converged" unfolds the node with the larger ε (a leaf is never unfolded);
+* a leaf–leaf pair is evaluated with ``kernel`` (hybrid: exact for not-converged).
+
+Surrogate ε carries a small safety margin at query time (a few hundred ulp of the
+pair's scale) so that rounding can never prune a pair the flat search reports;
+leaf–leaf evaluations are bit-identical to the flat search's. Hence (Lemma 1) the
+finest-level contact pairs equal those of the flat search, pair for pair.
+
+Contacts: for a leaf pair with closest points p (on A), q (on B) at distance d, the
+point is on the segment p→q weighted by the ε's (midpoint for equal ε), the normal
+points from A to B ((q − p)/d, or A's face normal when d ≈ 0), and the overlap is
+ε_a + ε_b − d. Points of one body pair closer than the smaller ε are merged into
+their average (normals averaged and renormalised, overlaps averaged).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from engine.arguments import KERNELS, check_kernel, check_precision, kernel_constants
+from engine.errors import InvalidArgumentError
+from engine.geometry.distance import (
+    DEFAULT_ITERATIONS,
+    DEFAULT_PRECISION,
+    DEFAULT_RTOL,
+    TriangleSet,
+    triangle_contacts,
+)
+from engine.geometry.pose import Pose
+from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.contact_merge import contact_kernel
+from engine.kernels.collision.rigid import margin_kernel, move_kernel
+from engine.kernels.collision.traversal import query_kernel
+from engine.kernels.geometry import triangle_batch as tb
+from engine.trees.tree import SurrogateTree
+
+__all__ = ["ContactSet", "ContactStats", "find_contacts"]
+
+ULP = {np.float32: float(np.finfo(np.float32).eps), np.float64: float(np.finfo(np.float64).eps)}
+TINY = 1e3 * float(np.finfo(np.float32).eps)  # relative gap below which p and q coincide
+
+
+@dataclass(frozen=True)
+class ContactStats:
+    """Counters of one query.
+
+    comparisons_per_level : triangle pairs evaluated per front level (one entry, all
+        leaf pairs, for the flat search)
+    iterative, fallbacks : iterative evaluations and exact fallbacks
+    unfoldings : node pairs unfolded
+    raw_contacts, merged_contacts : contact points before and after merging
+    sphere_pruned : node pairs pruned by their bounding spheres, before any triangle
+        comparison (not counted as comparisons)
+    """
+
+    comparisons_per_level: tuple[int, ...] = ()
+    iterative: int = 0
+    fallbacks: int = 0
+    unfoldings: int = 0
+    raw_contacts: int = 0
+    merged_contacts: int = 0
+    sphere_pruned: int = 0
+
+    @property
+    def comparisons(self) -> int:
+        return sum(self.comparisons_per_level)
+
+
+@dataclass(frozen=True)
+class ContactSet:
+    """Contacts between two bodies, in the world frame.
+
+    pairs : (m, 2) int64 — (face of A, face of B) in contact, before merging, sorted
+    points : (k, 3) float64 — merged contact points
+    normals : (k, 3) float64 — unit, from A to B
+    overlaps : (k,) float64 — ε_a + ε_b − d, in [0, ε_a + ε_b]
+    stats : ContactStats
+    """
+
+    pairs: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    overlaps: np.ndarray
+    stats: ContactStats = field(default_factory=ContactStats)
+
+
+def find_contacts(
+    tree_a: SurrogateTree,
+    pose_a: Pose,
+    tree_b: SurrogateTree,
+    pose_b: Pose,
+    kernel: str = "hybrid",
+    hierarchy: bool = True,
+    precision: str = DEFAULT_PRECISION,
+    traversal: str = "pairs",
+    iterations: int = DEFAULT_ITERATIONS,
+) -> ContactSet:
+    """Contacts between body A (``tree_a`` at ``pose_a``) and body B.
+
+    Parameters
+    ----------
+    tree_a, tree_b : SurrogateTree — the bodies' trees (body frames); ε of the leaves
+        is each body's halo
+    pose_a, pose_b : Pose
+    kernel : "exact", "iterative" or "hybrid" — for leaf pairs ("iterative" then
+        reports only certified contacts)
+    hierarchy : bool — multiresolution search; False runs the flat search over all
+        leaf pairs
+    precision : "float32" or "float64" (default:
+        :data:`~engine.geometry.distance.DEFAULT_PRECISION`)
+    traversal : "pairs" — a front of node pairs, one Numba kernel per query (default);
+        "sets" — the paper's Algorithm 5: every pair of two active node sets per round
+        (driven from Python; for comparison, see BENCHMARKS.md)
+    iterations : int ≥ 1 — sweeps of the iterative kernel per pair, for surrogate pairs and
+        (kernels "iterative" and "hybrid") leaf pairs; ``benchmarks/search_pareto.py`` sweeps it
+
+    Returns
+    -------
+    ContactSet
+    """
+    check_posed_pair(tree_a, pose_a, tree_b, pose_b)
+    check_kernel(kernel), check_precision(precision)  # validate before any work
+    if traversal not in ("pairs", "sets"):
+        raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)):
+        raise InvalidArgumentError(f"iterations must be an integer, got {iterations!r}")
+    if iterations < 1:
+        raise InvalidArgumentError(f"iterations must be at least 1, got {iterations}")
+    rot_a, rotation, shift = relative_pose(
+        pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
+    )
+    pose = (rotation, shift)
+    contact = _contact_setup(tree_a, tree_b, rot_a, pose_a.position.copy(), kernel)
+    if hierarchy and traversal == "pairs":
+        result, counters = _hierarchical(
+            tree_a, tree_b, pose, contact, kernel, precision, int(iterations)
+        )
+    else:
+        search = _active_sets if hierarchy else _flat
+        found, count, face_a, face_b, counters = search(
+            tree_a, tree_b, pose, kernel, precision, int(iterations)
+        )
+        result = (
+            np.empty((count, 2), np.int64),
+            np.empty((count, 3)),
+            np.empty((count, 3)),
+            np.empty(count),
+        )
+        m, k = contact_kernel(found, count, face_a, face_b, *contact, result)
+        result = (result[0][:m], result[1][:k], result[2][:k], result[3][:k])
+    stats = ContactStats(*counters[:4], len(result[0]), len(result[1]), *counters[4:])
+    return ContactSet(*result, stats)
+
+
+def check_posed_pair(tree_a, pose_a, tree_b, pose_b) -> None:
+    """Raise :class:`InvalidArgumentError` unless the trees are SurrogateTrees and the
+    poses Poses."""
+    for name, tree in (("tree_a", tree_a), ("tree_b", tree_b)):
+        if not isinstance(tree, SurrogateTree):
+            raise InvalidArgumentError(f"{name} must be a SurrogateTree")
+    for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
+        if not isinstance(pose, Pose):
+            raise InvalidArgumentError(f"{name} must be a Pose")
+
+
+def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:
+    """The ``contact_kernel`` arguments after the found pairs and their face maps
+    (``rotation_a``, ``position_a``: A's pose, writable arrays as the batch passes them)."""
+    ea, eb = tree_a.leaf_epsilon, tree_b.leaf_epsilon
+    tiny = TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
+    setup = (ea, eb, tiny, min(ea, eb), rotation_a, position_a)
+    return (
+        len(tree_b.views.geometry.face_nodes),
+        kernel != "iterative",
+        tree_a.views.geometry.face_normals,
+        setup,
+    )
+
+
+def _moved(tree: SurrogateTree, pose, index: np.ndarray, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major ``(N, 9)`` coordinates and ``(N, 14)`` frames of ``tree``'s nodes, of which
+    rows ``index`` are moved rigidly by ``pose`` (frame vectors rotate, scalars stay) and
+    rounded to ``dtype`` (the other rows are undefined). ``move_kernel`` does the moving,
+    as in the multiresolution search: leaf inputs are identical (Invariant 1)."""
+    master = tree.views.geometry.master
+    coords = np.empty(master.coords_rm.shape, dtype)
+    frames = np.empty(master.frames_rm.shape, dtype)
+    move_kernel(master.coords_rm, master.frames_rm, index, *pose, coords, frames)
+    return coords, frames
+
+
+def _flat(tree_a, tree_b, pose, kernel, precision, iterations):
+    leaves = tree_b.views.geometry.face_nodes
+    coords, frames = _moved(tree_b, pose, leaves, np.dtype(precision).type)
+    res = triangle_contacts(
+        tree_a.views.geometry.node_set(precision, True),
+        TriangleSet.prepared(coords[leaves].T, frames[leaves].T),
+        tree_a.leaf_epsilon,
+        tree_b.leaf_epsilon,
+        kernel=kernel,
+        precision=precision,
+        threads=1,
+        iterations=iterations,
+    )
+    s = res.stats
+    found = _found(res.pairs, res)
+    return (
+        found,
+        len(res),
+        tree_a.views.geometry.faces,
+        tree_b.views.geometry.faces,
+        ((s.pairs,), s.iterative, s.fallbacks, 0),
+    )
+
+
+def _found(pairs: np.ndarray, res) -> tuple:
+    """The kernels' result layout from a :class:`TriangleContacts`-like result."""
+    return (
+        np.ascontiguousarray(pairs[:, 0]),
+        np.ascontiguousarray(pairs[:, 1]),
+        res.distance,
+        np.ascontiguousarray(res.point_a.T),
+        np.ascontiguousarray(res.point_b.T),
+        res.status,
+    )
+
+
+def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision, iterations):
+    dtype = np.dtype(precision).type
+    sa = tree_a.views.geometry.node_set(precision, False)
+    master = tree_b.views.geometry.master
+    coarse, leaf = query_parameters(kernel, dtype, iterations)
+    body_a = (sa.coords_rm, sa.frames_rm, *tree_a.views.structure, tree_a.views.spheres)
+    body_b = (
+        master.coords_rm,
+        master.frames_rm,
+        *tree_b.views.structure,
+        tree_b.views.spheres,
+    )
+    stats = np.zeros(tb.N_STATS, np.int64)
+    levels = np.zeros(64, np.int64)
+    margin = query_margin(
+        tree_a.views.geometry.extent, tree_b.views.geometry.extent, pose[1], ULP[dtype]
+    )
+    depth, unfoldings, result, _ = query_kernel(
+        body_a, body_b, pose, margin, 0.0, coarse, leaf, contact, stats, levels
+    )
+    counters = (
+        tuple(levels[: min(depth, len(levels))].tolist()),
+        int(stats[tb.STAT_ITERATIVE]),
+        int(stats[tb.STAT_FALLBACKS]),
+        int(unfoldings),
+        int(stats[tb.STAT_SPHERES]),
+    )
+    return result, counters
+
+
+@functools.lru_cache(maxsize=64)
+def query_parameters(
+    kernel: str, dtype, iterations: int = DEFAULT_ITERATIONS
+) -> tuple[tuple, tuple]:
+    """Kernel parameters ``(mode, iterations, rtol, one, band)`` for surrogate pairs
+    (iterative; exact when ``kernel="exact"``) and for leaf pairs (``kernel``); cached
+    (immutable scalars)."""
+    one, band = kernel_constants(dtype)
+    iterations, rtol = np.int64(iterations), dtype(DEFAULT_RTOL)
+    coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
+    return (coarse_mode, iterations, rtol, one, band), (
+        KERNELS[kernel],
+        iterations,
+        rtol,
+        one,
+        band,
+    )
+
+
+def _active_sets(tree_a, tree_b, pose, kernel, precision, iterations):
+    """Algorithm 5: compare all pairs of the active sets; unfold both nodes of a hit."""
+    dtype = np.dtype(precision).type
+    sa = tree_a.views.geometry.node_set(precision, False)
+    sb = TriangleSet.prepared(*(x.T for x in _moved(tree_b, pose, np.arange(len(tree_b)), dtype)))
+    margin = query_margin(
+        tree_a.views.geometry.extent, tree_b.views.geometry.extent, pose[1], ULP[dtype]
+    )
+    eps_a, eps_b = np.empty(len(tree_a), dtype), np.empty(len(tree_b), dtype)
+    margin_kernel(*tree_a.views.structure[:2], margin, eps_a)
+    margin_kernel(*tree_b.views.structure[:2], margin, eps_b)
+    surrogate_kernel = "exact" if kernel == "exact" else "iterative"
+    active_a, active_b = np.zeros(1, np.int64), np.zeros(1, np.int64)
+    found, per_level, iterative, fallbacks, unfoldings = [], [], 0, 0, 0
+
+    def contacts(grid, kernel):
+        return triangle_contacts(
+            sa,
+            sb,
+            eps_a,
+            eps_b,
+            pairs=grid,
+            kernel=kernel,
+            precision=precision,
+            threads=1,
+            iterations=iterations,
+        )
+
+    while len(active_a) and len(active_b):
+        grid = np.stack(np.meshgrid(active_a, active_b, indexing="ij"), -1).reshape(-1, 2)
+        per_level.append(len(grid))
+        finest = (tree_a.face[grid[:, 0]] >= 0) & (tree_b.face[grid[:, 1]] >= 0)
+        if finest.any():
+            res = contacts(grid[finest], kernel)
+            found.append(res)
+            iterative, fallbacks = iterative + res.stats.iterative, fallbacks + res.stats.fallbacks
+        res = contacts(grid[~finest], surrogate_kernel)
+        iterative += res.stats.iterative
+        hits = res.pairs
+        unfoldings += len(hits)
+        active_a = _unfold_set(tree_a, hits[:, 0])
+        active_b = _unfold_set(tree_b, hits[:, 1])
+    if not found:
+        found = [contacts(np.zeros((0, 2), np.int64), kernel)]
+    pairs = np.concatenate([r.pairs for r in found])
+    keep = np.unique(pairs, axis=0, return_index=True)[1]  # a leaf pair may recur
+
+    class Stacked:  # the found rows ``keep``, concatenated
+        distance, point_a, point_b, status = (
+            np.concatenate([getattr(r, name) for r in found])[keep]
+            for name in ("distance", "point_a", "point_b", "status")
+        )
+
+    counters = (tuple(per_level), iterative, fallbacks, unfoldings)
+    faces = tree_a.views.structure[1], tree_b.views.structure[1]
+    return _found(pairs[keep], Stacked), len(keep), *faces, counters
+
+
+def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
+    """Next active set: each leaf stays, each surrogate is replaced by its children."""
+    nodes = np.unique(nodes)
+    leaves = nodes[tree.face[nodes] >= 0]
+    inner = nodes[tree.face[nodes] < 0]
+    counts = tree.child_count[inner].astype(np.int64)
+    starts = np.repeat(tree.first_child[inner].astype(np.int64), counts)
+    children = starts + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    return np.unique(np.concatenate([leaves, children]))

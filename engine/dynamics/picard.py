@@ -1,0 +1,624 @@
+"""Time stepping of a :class:`~engine.scene.Scene` (paper §2 Algorithms 1 and 3, §5).
+
+* ``explicit`` — Algorithm 1 in the Euler–Cromer order the paper mentions: forces of the
+  current configuration, then ``v' = v + dt·F/m``, ``L' = L + dt·τ``, and the pose moves
+  with the new velocities. Unlike the forward order (pose first) it does not pump energy
+  into an undamped contact spring, and it conserves linear and angular momentum to
+  rounding (torques are taken about the step's starting centres of mass).
+* ``implicit`` — Algorithm 3: Picard iterations on the end-of-step velocities; each
+  iteration finds the contacts of the guessed configuration with the flat search, and
+  moves every body from the step's start with the (relaxed) forces.
+* ``implicit-surrogate`` — the same with the multiresolution search in every iteration.
+* ``implicit-midpoint`` — the implicit midpoint rule, second order (not in the paper):
+  an ``implicit-surrogate`` step of dt/2 to the midpoint, then the state extrapolated
+  linearly through it to the end of the step (positions, velocities and angular momenta
+  2·mid − start; the orientation turned on by the same rotation). Backward Euler is
+  first order and dissipative (a collision's restitution 0.62 at dt = 1e-3); the
+  midpoint rule is neither (BENCHMARKS.md). Its :class:`StepStats` (contacts, overlap,
+  elastic energy) describe the midpoint, the configuration it evaluated last. It adds no
+  numerical damping: with an undamped contact law a resting body keeps a small
+  oscillation (mm/s) and never sleeps; the law's damping brings it to rest.
+
+Picard relaxation (the paper's "weighted average between the currently computed forces
+and the forces of the previous step"): the applied forces move towards each iteration's
+computed forces by a weight β — first 1/(1 + λ) from the contact stiffness, then
+Aitken's safeguarded secant weight (:func:`_aitken`). β is one number for all bodies
+(one for normal, one for friction forces), so every contact still applies equal and
+opposite forces: momentum is conserved exactly at every iteration. Converged when no
+body's computed force or torque differs from the applied one by more than
+``picard_tolerance`` (1 %) of the forces acting on it (:func:`_settled`). A step that
+does not converge within ``max_picard_iterations`` says so in its :class:`StepStats`;
+with ``max_halvings > 0`` it is redone as two half steps.
+
+Warm start across steps: a converged step ends in the configuration it evaluated last,
+so the next step's first iteration reuses that evaluation (``StepStats.evaluations``
+counts the searches actually run). (A linear extrapolation of the first applied forces
+from the last two steps was tried and dropped: more evaluations on the grid, 39 against 32
+over ten steps, and a resting sphere crept at 3e-3 m/s — the accepted solution, anywhere
+within the tolerance, was biased the same way every step.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.kernels.dynamics import contact_forces as kf
+from engine.kernels.dynamics import motion as kd
+
+__all__ = ["StepStats", "TunnellingWarning", "step", "travel"]
+
+BETA_MAX = 1.5
+BETA_MIN = 0.01
+_ATOL = 1e-9
+SWITCH_AFTER = 8
+"""Picard iterations after which a step may settle on a contact-set switch (:func:`_switch`)."""
+
+
+@dataclass(frozen=True)
+class StepStats:
+    """What one time step did.
+
+    scheme : str; dt : float — the step (its halves, if it was retried, are included)
+    converged : bool — Picard converged (always True for ``explicit``)
+    picard_iterations : int — Picard iterations (1 for ``explicit``)
+    evaluations : int — contact searches run: the first iteration of a step that follows
+        a converged step reuses that step's last evaluation (same configuration)
+    body_pairs : int — body pairs of the narrow phase, last evaluation
+    contacts : int — merged contact points, last evaluation
+    triangle_pairs : int — finest-level triangle pairs in contact, last evaluation
+    comparisons, iterative, fallbacks, sphere_pruned, unfoldings : int — search counters
+        summed over all evaluations
+    folds : int — multiscale: sibling groups folded back into their parent
+    listed : int — body-pair searches served by the pair cache's lists (no traversal)
+    max_overlap : float — largest overlap / (ε_a + ε_b) at the end of the step
+    elastic_energy : float — energy stored in the contact springs, last evaluation
+    halvings : int — how many times the step was split because Picard did not converge
+    seconds : float — wall time
+    travel : float — the step's largest surface travel of a body relative to its ε,
+        (|v| + |ω|·R)·dt / ε at the step's start: above 1 a contact may be missed
+        (tunnelling)
+    substeps : int — sub-steps the step was split into because of ``travel`` (1: none)
+    sleeping : int — bodies asleep after the step (:mod:`engine.dynamics.sleep`)
+    """
+
+    scheme: str
+    dt: float
+    converged: bool
+    picard_iterations: int
+    evaluations: int
+    body_pairs: int
+    contacts: int
+    triangle_pairs: int
+    comparisons: int
+    iterative: int
+    fallbacks: int
+    sphere_pruned: int
+    unfoldings: int
+    folds: int
+    listed: int
+    max_overlap: float
+    elastic_energy: float
+    halvings: int
+    seconds: float
+    travel: float = 0.0
+    substeps: int = 1
+    sleeping: int = 0
+
+
+class TunnellingWarning(UserWarning):
+    """A step moves some body's surface by more than its ε: contacts may be missed."""
+
+
+def travel(scene, dt: float) -> tuple[float, int]:
+    """``(ratio, body)``: the largest (|v| + |ω|·R)·dt / ε over the free bodies (R: the
+    bounding radius of the body's tree, ε: its leaf ε) and that body (-1 for none)."""
+    free = np.flatnonzero(~scene.fixed)
+    if not len(free):
+        return 0.0, -1
+    radius = _bodies(scene).radius[free]
+    speed = np.linalg.norm(scene.velocities[free], axis=1) + radius * np.linalg.norm(
+        scene.angular_velocities[free], axis=1
+    )
+    ratio = speed * abs(dt) / scene.epsilon[free]
+    k = int(np.argmax(ratio))
+    return float(ratio[k]), int(free[k])
+
+
+def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> StepStats:
+    """Advance ``scene`` by ``dt`` with ``scheme`` (see the module docstring).
+
+    No contact is missed while every body's surface moves by less than its ε per step
+    (:func:`travel` ≤ 1: the step cannot jump from outside the contact halo to beyond
+    it). Above that, ``scene.substeps`` splits the step into ⌈travel⌉ equal sub-steps;
+    otherwise a :class:`TunnellingWarning` says so."""
+    start = time.perf_counter()
+    ratio, body = travel(scene, dt)
+    if ratio > 1.0 and halvings_left is None:
+        k = math.ceil(ratio)
+        if scene.substeps:
+            parts = [step(scene, dt / k, scheme, scene.max_halvings) for _ in range(k)]
+            merged = _combined(parts, dt, time.perf_counter() - start)
+            return dataclasses.replace(merged, travel=ratio, substeps=k)
+        warnings.warn(
+            TunnellingWarning(
+                f"body {body} moves {ratio:.3g} times its ε in this step of {dt:g}: contacts"
+                f" may be missed. Use dt <= {dt / ratio:.3g} or Scene(substeps=True)"
+            ),
+            stacklevel=3,
+        )
+    left = scene.max_halvings if halvings_left is None else halvings_left
+    state = _state(scene)
+    if scheme == "explicit":
+        stats = _explicit(scene, dt)
+        scene._evaluation = None
+    elif scheme == "multiscale":
+        search = scene.multiscale
+        search.begin_step()
+        stats = _picard(scene, dt, search)
+    elif scheme == "implicit-midpoint":
+        stats = _picard(scene, dt / 2, _Search(scene, hierarchy=True))
+        if stats["converged"] or left == 0:
+            _extrapolate(scene, state, dt)
+    else:
+        stats = _picard(scene, dt, _Search(scene, hierarchy=scheme == "implicit-surrogate"))
+    if not stats["converged"] and left > 0:
+        _restore(scene, state)
+        first = step(scene, dt / 2, scheme, left - 1)
+        second = step(scene, dt / 2, scheme, left - 1)
+        merged = _combined([first, second], dt, time.perf_counter() - start)
+        return dataclasses.replace(merged, halvings=merged.halvings + 1, travel=ratio)
+    scene.time += dt
+    return StepStats(
+        scheme=scheme,
+        dt=dt,
+        halvings=0,
+        seconds=time.perf_counter() - start,
+        travel=ratio,
+        **stats,
+    )
+
+
+class _Search:
+    """A fresh search of every configuration (flat or multiresolution); never changes."""
+
+    def __init__(self, scene, hierarchy: bool) -> None:
+        self.scene, self.hierarchy = scene, hierarchy
+
+    def __call__(self, positions, orientations):
+        return self.scene.contacts(positions, orientations, self.hierarchy), None, False
+
+
+def _explicit(scene, dt: float) -> dict:
+    x, q, v, w = _state(scene)
+    search = _Search(scene, hierarchy=True)
+    normal, friction, _, contacts, energy, _ = _forces(scene, (x, q, v, w), x, search)
+    out = tuple(np.empty_like(a) for a in (x, q, v, w))
+    force, torque = normal[0] + friction[0], normal[1] + friction[1]
+    _advance(scene, (x, q, v, w), force, torque, dt, out)
+    _restore(scene, out)
+    return {**_summary(scene, contacts, [contacts.counters], energy, True, 1), "evaluations": 1}
+
+
+def _picard(scene, dt: float, search) -> dict:
+    start = _state(scene)
+    guess = tuple(a.copy() for a in start)
+    radius = _bodies(scene).radius
+    applied, residual, beta = None, [None, None], [1.0, 1.0]
+    counters, converged, iterations, evaluations = [], False, 0, 0
+    key = _evaluation_key(scene, search)
+    forceless = True  # no evaluation of this step has had a contact force so far
+    recent: list[tuple[np.ndarray, np.ndarray]] = []  # the last computed totals
+    while iterations < scene.max_picard_iterations:
+        iterations += 1
+        reused = _reused(scene, key, start) if iterations == 1 else None
+        if reused is None:
+            evaluation = _forces(scene, guess, start[0], search)
+            evaluations += 1
+        else:
+            evaluation = reused
+        normal, friction, stiffness, contacts, energy, changed = evaluation
+        forceless = forceless and not stiffness.any()
+        computed = (normal, friction)
+        counters.append(contacts.counters if reused is None else _no_search(contacts.counters))
+        if applied is None:  # the forces of the step's start, then the first relaxation
+            applied = [(f.copy(), t.copy()) for f, t in computed]
+            beta = _first_weights(scene, stiffness, radius, dt)
+        else:
+            total = (normal[0] + friction[0], normal[1] + friction[1])
+            change = [(c[0] - a[0], c[1] - a[1]) for c, a in zip(computed, applied, strict=True)]
+            mismatch = (change[0][0] + change[1][0], change[0][1] + change[1][1])
+            # body forces alone, every time: the applied forces are the computed ones exactly
+            settled = forceless or _settled(scene, total, mismatch, stiffness[:, 2], radius)
+            recent = [] if changed else [*recent[-5:], total]
+            if not settled and iterations > SWITCH_AFTER:
+                applied_total = (
+                    applied[0][0] + applied[1][0],
+                    applied[0][1] + applied[1][1],
+                )
+                settled = _switch(scene, recent, applied_total, stiffness[:, 2], radius)
+            converged = settled and not changed  # multiscale: nothing unfolded either
+            if converged:
+                break
+            if changed:  # a front moved: the secant history no longer describes the map
+                residual = [None, None]
+                beta = _first_weights(scene, stiffness, radius, dt)
+            for part in range(2):  # normal and friction forces, each with its own weight
+                new = np.concatenate(
+                    [change[part][0].ravel(), (change[part][1] / radius[:, None]).ravel()]
+                )
+                beta[part] = _aitken(beta[part], residual[part], new)
+                residual[part] = new
+                applied[part] = tuple(
+                    a + beta[part] * c for a, c in zip(applied[part], change[part], strict=True)
+                )
+        force = applied[0][0] + applied[1][0]
+        torque = applied[0][1] + applied[1][1]
+        _advance(scene, start, force, torque, dt, guess)
+    _restore(scene, guess)
+    # the forces of the accepted configuration are the next step's first evaluation
+    scene._evaluation = (key, guess, start[0], evaluation) if converged else None
+    summary = _summary(scene, contacts, counters, energy, converged, iterations)
+    return {**summary, "evaluations": evaluations}
+
+
+def _evaluation_key(scene, search) -> tuple:
+    """What, besides the state, an evaluation's forces depend on."""
+    return (
+        type(search).__name__,
+        getattr(search, "hierarchy", None),
+        len(scene),
+        scene.kernel,
+        scene.precision,
+        scene.contact_model.parameters(),
+        scene.gravity.tobytes(),
+        scene.external_forces.tobytes(),
+        scene.fixed.tobytes(),
+        scene.masses.tobytes(),
+    )
+
+
+def _reused(scene, key, start):
+    """The last converged step's final evaluation if it was made of exactly this state
+    (same positions, orientations, velocities, spins and everything else the forces
+    depend on), with its torques moved to this step's lever origins; else None.
+
+    A converged Picard step ends in the configuration whose forces it evaluated last, so
+    the next step's first iteration — the forces of its start — is that evaluation: it
+    is reused instead of searched again. Only the lever origins of the torques differ
+    (the start of the step): τ' = τ + (o_old − o_new) × F for each body's contact force F.
+    """
+    cached = getattr(scene, "_evaluation", None)
+    if cached is None:
+        return None
+    cached_key, state, origins, evaluation = cached
+    if cached_key != key or not all(
+        np.array_equal(a, b) for a, b in zip(state, start, strict=True)
+    ):
+        return None
+    normal, friction, stiffness, contacts, energy, _ = evaluation
+    if stiffness.any():  # else no contact force: the torques have no lever to move
+        normal, friction = _moved_levers(scene, (normal, friction), origins, start[0])
+    return normal, friction, stiffness, contacts, energy, False
+
+
+def _moved_levers(scene, forces, old, new):
+    """``(normal, friction)`` force and torque pairs with the torques of the contact
+    forces taken about ``new (n, 3)`` instead of ``old`` lever origins."""
+    (normal, normal_torque), (friction, friction_torque) = forces
+    bodies = _bodies(scene)
+    lever = old - new
+    normal_torque = normal_torque + _cross(lever, normal - bodies.force)
+    friction_torque = friction_torque + _cross(lever, friction)
+    normal_torque[bodies.fixed] = 0.0
+    friction_torque[bodies.fixed] = 0.0
+    return (normal, normal_torque), (friction, friction_torque)
+
+
+def _no_search(counters: dict) -> dict:
+    """The counters of an evaluation that did not search (all zero but the contacts)."""
+    return {k: (v if k == "triangle_pairs" else 0) for k, v in counters.items()}
+
+
+def _aitken(beta: float, previous, current) -> float:
+    """Aitken's relaxation, safeguarded: the weight that would have cancelled the last
+    swing of the residual (it halves when residuals alternate and grows while they keep
+    their direction), but at most half the last weight when the residual grew and at most
+    twice it otherwise; clamped to [BETA_MIN, BETA_MAX]."""
+    if previous is not None:
+        swing = current - previous
+        norm = float(swing @ swing)
+        proposal = -beta * float(previous @ swing) / norm if norm > 0 else beta
+        grew = float(current @ current) > float(previous @ previous)
+        beta = min(proposal, 0.5 * beta) if grew else min(proposal, 2.0 * beta)
+    return min(max(beta, BETA_MIN), BETA_MAX)
+
+
+def _first_weights(scene, stiffness, radius, dt: float) -> list[float]:
+    """1/(1 + λ) for the normal and the friction forces, λ the largest per-body gain of a
+    Picard sweep: dt²·Σk (spring) and dt·Σc (friction) times (1/m + R²/I_min)."""
+    free = ~scene.fixed
+    if not free.any() or not stiffness.any():  # no body, or no contact: no gain
+        return [1.0, 1.0]
+    smallest = _smallest_inertia(scene)[free]
+    mobility = 1.0 / scene.masses[free] + radius[free] ** 2 / smallest
+    gain_n = float((dt * dt * stiffness[free, 0] * mobility).max())
+    gain_t = float((dt * stiffness[free, 1] * mobility).max())
+    return [1.0 / (1.0 + gain_n), 1.0 / (1.0 + gain_t)]
+
+
+def _smallest_inertia(scene) -> np.ndarray:
+    """(n,) smallest principal moment of each free body (NaN for fixed ones), kept while
+    ``scene.inertia`` and ``scene.fixed`` are the same arrays (adding bodies replaces them)."""
+    cached = getattr(scene, "_smallest_inertia", None)
+    if cached is None or cached[0] is not scene.inertia or cached[1] is not scene.fixed:
+        free = ~scene.fixed
+        smallest = np.full(len(free), np.nan)
+        if free.any():
+            smallest[free] = np.linalg.eigvalsh(scene.inertia[free])[:, 0]
+        cached = (scene.inertia, scene.fixed, smallest)
+        scene._smallest_inertia = cached
+    return cached[2]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a × b of ``(n, 3)`` arrays (np.cross costs ~20 µs of checks per call)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class _Bodies:
+    """Per-body terms that stay the same from one search to the next.
+
+    free : (n,) bool; fixed : (k,) int64 rows of the fixed bodies
+    force : (n, 3) float64 — weight plus external force (0 on fixed bodies)
+    size : (n,) float64 — m·|g| + |external force|
+    weight : float — the largest weight of a free body
+    radius : (n,) float64 — bounding radius of each body's mesh (a lever that makes
+        torques force-like)
+    inverse_mass : (n,) float64 — 0 for fixed bodies
+    """
+
+    free: np.ndarray
+    fixed: np.ndarray
+    force: np.ndarray
+    size: np.ndarray
+    weight: float
+    radius: np.ndarray
+    inverse_mass: np.ndarray
+
+
+def _bodies(scene) -> _Bodies:
+    """The scene's :class:`_Bodies`, rebuilt when the bodies, their masses or fixed flags,
+    gravity or the external forces change (arrays replaced, or edited in place)."""
+    arrays = (scene.masses, scene.fixed, scene.tree_index)
+    values = tuple(
+        a.tobytes() for a in (scene.masses, scene.fixed, scene.gravity, scene.external_forces)
+    )
+    cached = scene.__dict__.get("_body_terms")
+    if (
+        cached is not None
+        and all(a is b for a, b in zip(cached[0], arrays, strict=True))
+        and cached[1] == values
+    ):
+        return cached[2]
+    free = ~scene.fixed
+    force = np.zeros((len(free), 3))
+    force[free] = scene.masses[free, None] * scene.gravity + scene.external_forces[free]
+    size = np.zeros(len(free))
+    size[free] = scene.masses[free] * np.linalg.norm(scene.gravity) + np.linalg.norm(
+        scene.external_forces[free], axis=1
+    )
+    radius = np.array([max(t.bounding_radius, 1e-12) for t in scene.trees])[scene.tree_index]
+    weight = float((scene.masses[free] * np.linalg.norm(scene.gravity)).max(initial=0.0))
+    inverse_mass = np.where(scene.fixed, 0.0, 1.0 / scene.masses)
+    terms = _Bodies(free, np.flatnonzero(scene.fixed), force, size, weight, radius, inverse_mass)
+    scene._body_terms = (arrays, values, terms)
+    return terms
+
+
+def _forces(scene, configuration, origins, search):
+    """Normal (with gravity and external) and friction forces and torques ``(n, 3)`` of a
+    configuration, the per-body contact stiffness sums, the leaf contacts, the elastic
+    energy and whether the search's fronts changed. Surrogate contacts (multiscale) add
+    normal forces only."""
+    x, q, v, w = configuration
+    contacts, surrogate, changed = search(x, q)
+    bodies = _bodies(scene)
+    force = bodies.force.copy()
+    torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
+    stiffness = np.zeros((len(x), 3))
+    out = (force, torque, friction_force, friction_torque, stiffness)
+    law = scene.contact_model.parameters()
+    energy = 0.0
+    for found, parameters in ((contacts, law), (surrogate, (*law[:3], 0.0, law[4]))):
+        if found is not None and len(found.points):
+            energy += kf.contact_forces(
+                found.bodies,
+                found.offsets,
+                found.points,
+                found.normals,
+                found.overlaps,
+                (x, v, w, origins),
+                (scene.masses, scene.epsilon),
+                parameters,
+                out,
+            )
+    if len(bodies.fixed):
+        for array in (force, torque, friction_force, friction_torque):
+            array[bodies.fixed] = 0.0
+    return (force, torque), (friction_force, friction_torque), stiffness, contacts, energy, changed
+
+
+def _settled(scene, computed, mismatch, gross, radius) -> bool:
+    """Self-consistent: every free body's computed force and torque differ from the applied
+    ones (``mismatch``) by at most ``scene.picard_tolerance`` of the forces acting on it —
+    the larger of its net force and the sum of its contact forces' magnitudes ``gross
+    (n,)`` plus its weight (a body squeezed between equal and opposite contacts has a
+    near-zero net force; relative to it, no iteration would ever settle) — and torques by
+    at most that times the lever ``radius``."""
+    bodies = _bodies(scene)
+    return kf.settled(
+        computed,
+        mismatch,
+        gross,
+        bodies.size,
+        radius,
+        scene.fixed,
+        scene.picard_tolerance,
+        _ATOL,
+        bodies.weight,
+    )
+
+
+def _switch(scene, recent, applied, gross, radius) -> bool:
+    """Settled on a switch of the contact set: the last computed totals ``recent`` (force,
+    torque pairs, up to six) take two values A and B in turn — each at least twice, within
+    the Picard tolerance, and the sequence goes from one to the other and back (a single
+    change from A to B is a transition, not a cycle) — and the applied totals lie within
+    the tolerance of the segment from A to B (one weight for the whole scene).
+
+    The merged contact forces jump where a contact point joins or leaves a cluster (the
+    merge radius is a threshold), and a step that ends at such a configuration has no
+    fixed point: its iterates flip between the two contact sets forever (measured: a box
+    resting on a plane, 68,000 steps in, ±0.5 N on a 9.81 N weight). The forces of a
+    configuration on the switch are taken as the combination of the two one-sided limits
+    that the iteration converges to, as for any discontinuous right-hand side (Filippov)."""
+    if len(recent) < 4:
+        return False
+    last = recent[-1]
+    same = [_settled(scene, last, (r[0] - last[0], r[1] - last[1]), gross, radius) for r in recent]
+    side_a = [r for r, s in zip(recent, same, strict=True) if s]
+    side_b = [r for r, s in zip(recent, same, strict=True) if not s]
+    changes = sum(x != y for x, y in zip(same[:-1], same[1:], strict=True))
+    if len(side_a) < 2 or len(side_b) < 2 or changes < 2:
+        return False
+    first_b = side_b[0]
+    if not all(
+        _settled(scene, first_b, (r[0] - first_b[0], r[1] - first_b[1]), gross, radius)
+        for r in side_b
+    ):
+        return False
+    a = [np.mean([r[k] for r in side_a], axis=0) for k in range(2)]
+    b = [np.mean([r[k] for r in side_b], axis=0) for k in range(2)]
+    span = np.concatenate([(b[0] - a[0]).ravel(), ((b[1] - a[1]) / radius[:, None]).ravel()])
+    offset = np.concatenate(
+        [(applied[0] - a[0]).ravel(), ((applied[1] - a[1]) / radius[:, None]).ravel()]
+    )
+    t = float(np.clip(offset @ span / (span @ span), 0.0, 1.0)) if span @ span > 0 else 0.0
+    point = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]))
+    return _settled(scene, applied, (applied[0] - point[0], applied[1] - point[1]), gross, radius)
+
+
+def _extrapolate(scene, start, dt: float) -> None:
+    """From the midpoint the scene is at, on through it to the end of the step: free bodies'
+    positions, velocities and world angular momenta become 2·mid − start, orientations turn
+    on by the rotation from start to mid. The half step took contact torques about the
+    start's centres; over the whole step they act about the midpoint's, so the spin gains
+    dt·(x_start − x_mid) × F_contact — with it linear and angular momentum are conserved
+    exactly, as the midpoint rule conserves every quadratic invariant. The last evaluation
+    (of the midpoint) is no longer the configuration's."""
+    x0, q0, v0, w0 = start
+    free = np.flatnonzero(~scene.fixed)
+    scene._evaluation = None
+    if not len(free):
+        return
+    x1, q1, v1, w1 = (a[free] for a in _state(scene))
+    rot = np.empty((len(free), 3, 3))
+    inertia = scene.inertia[free]
+    kd.rotation_matrices(q0[free], rot)
+    momentum0 = np.einsum("bij,bjk,bkl,bl->bi", rot, inertia, rot.transpose(0, 2, 1), w0[free])
+    kd.rotation_matrices(q1, rot)
+    momentum1 = np.einsum("bij,bjk,bkl,bl->bi", rot, inertia, rot.transpose(0, 2, 1), w1)
+    q2 = _quaternion_product(_quaternion_product(q1, q0[free] * [1, -1, -1, -1]), q1)
+    q2 /= np.linalg.norm(q2, axis=1)[:, None]
+    kd.rotation_matrices(q2, rot)
+    world = np.einsum("bij,bjk,bkl->bil", rot, inertia, rot.transpose(0, 2, 1))
+    contact = scene.masses[free, None] * (v1 - v0[free]) * (2.0 / dt) - _bodies(scene).force[free]
+    momentum2 = 2.0 * momentum1 - momentum0 + dt * _cross(x0[free] - x1, contact)
+    spin = np.linalg.solve(world, momentum2[..., None])[..., 0]
+    x, q, v, w = (a.copy() for a in _state(scene))
+    x[free], q[free], v[free], w[free] = 2.0 * x1 - x0[free], q2, 2.0 * v1 - v0[free], spin
+    _restore(scene, (x, q, v, w))
+
+
+def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise Hamilton product of ``(n, 4)`` quaternions (w, x, y, z)."""
+    w1, x1, y1, z1 = a.T
+    w2, x2, y2, z2 = b.T
+    return np.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        axis=1,
+    )
+
+
+def _advance(scene, start, force, torque, dt: float, out) -> None:
+    inverse_mass = _bodies(scene).inverse_mass
+    kd.advance(start, force, torque, inverse_mass, scene.inertia, scene.inverse_inertia, dt, out)
+
+
+def _summary(scene, contacts, counters, energy, converged: bool, iterations: int) -> dict:
+    totals = {k: sum(c[k] for c in counters) for k in counters[0] if k != "triangle_pairs"}
+    eps = scene.epsilon
+    worst = 0.0
+    if len(contacts.points):  # each overlap relative to its pair's reach ε_a + ε_b
+        pair = np.repeat(np.arange(len(contacts.bodies)), np.diff(contacts.offsets))
+        reach = eps[contacts.bodies[pair, 0]] + eps[contacts.bodies[pair, 1]]
+        worst = float((contacts.overlaps / reach).max())
+    return {
+        "converged": bool(converged),
+        "picard_iterations": iterations,
+        "body_pairs": len(contacts.bodies),
+        "contacts": len(contacts.points),
+        "triangle_pairs": counters[-1]["triangle_pairs"],
+        "max_overlap": worst,
+        "elastic_energy": float(energy),
+        **totals,
+    }
+
+
+def _combined(parts: list[StepStats], dt: float, seconds: float) -> StepStats:
+    """One step's statistics from consecutive parts of it (halves or sub-steps): counters
+    summed, the state of the last part, the worst overlap."""
+    from engine.scene import SEARCH_COUNTERS
+
+    summed = ("picard_iterations", "evaluations", *SEARCH_COUNTERS, "halvings")
+    last = parts[-1]
+    return dataclasses.replace(
+        last,
+        dt=dt,
+        converged=all(p.converged for p in parts),
+        max_overlap=max(p.max_overlap for p in parts),
+        seconds=seconds,
+        travel=max(p.travel for p in parts),
+        **{k: sum(getattr(p, k) for p in parts) for k in summed},
+    )
+
+
+def _state(scene) -> tuple[np.ndarray, ...]:
+    return (
+        scene.positions.copy(),
+        scene.orientations.copy(),
+        scene.velocities.copy(),
+        scene.angular_velocities.copy(),
+    )
+
+
+def _restore(scene, state) -> None:
+    scene.positions, scene.orientations, scene.velocities, scene.angular_velocities = (
+        a.copy() for a in state
+    )

@@ -1,0 +1,89 @@
+"""Bodies at rest sleep: no narrow phase, no integration, until something moving comes near.
+
+A free body whose surface speed |v| + |ω|·R stays below ``speed`` for ``steps`` consecutive
+steps falls asleep: during a step it is treated as fixed (zero velocity, no integration;
+pairs of two sleeping or sleeping and fixed bodies are never tested, as fixed–fixed pairs
+are not), while its contacts with awake bodies are evaluated as usual, so an awake body
+still rests on it. After each step every body that is a broad-phase candidate of an awake
+body moving at ``speed`` or faster is kept awake (a sleeping one wakes, its velocity starting
+from zero), and wakes its neighbours in turn when it moves. Anything that changes the scene
+from outside (``set_state``, external forces, new bodies) wakes every body.
+
+Sleeping is an approximation (a sleeping body feels no gravity and no contact forces), off
+by default: ``Scene(sleep=True)`` or ``Scene(sleep=Sleep(speed=…, steps=…))``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from engine.errors import InvalidArgumentError
+
+__all__ = ["Sleep"]
+
+
+class Sleep:
+    """The sleep rule and each body's sleep state.
+
+    Parameters
+    ----------
+    speed : float — surface speed below which a body counts as at rest (> 0)
+    steps : int — consecutive steps at rest before it sleeps (>= 1)
+    """
+
+    def __init__(self, speed: float = 1e-3, steps: int = 50) -> None:
+        if not (np.isfinite(speed) and speed > 0):
+            raise InvalidArgumentError(f"sleep speed must be finite and > 0, got {speed!r}")
+        if int(steps) < 1:
+            raise InvalidArgumentError(f"sleep steps must be >= 1, got {steps!r}")
+        self.speed, self.steps = float(speed), int(steps)
+        self.wake_all(0)
+
+    def wake_all(self, n: int) -> None:
+        self.asleep = np.zeros(n, bool)
+        self.rest = np.zeros(n, np.int64)
+
+    def step(self, scene, dt: float, scheme: str):
+        """One step of ``scene`` with its sleeping bodies frozen; then the sleep update."""
+        from engine.dynamics.picard import step
+
+        if len(self.asleep) != len(scene):
+            self.wake_all(len(scene))
+        frozen = self.asleep & ~scene.fixed
+        if frozen.any():
+            fixed = scene.fixed
+            scene.fixed = fixed | frozen
+            scene.velocities[frozen] = 0.0
+            scene.angular_velocities[frozen] = 0.0
+            try:
+                stats = step(scene, dt, scheme)
+            finally:
+                scene.fixed = fixed
+        else:
+            stats = step(scene, dt, scheme)
+        self._update(scene)
+        return dataclasses.replace(stats, sleeping=int(self.asleep.sum()))
+
+    def _update(self, scene) -> None:
+        from engine.dynamics.picard import _bodies
+
+        free = ~scene.fixed
+        speed = np.linalg.norm(scene.velocities, axis=1) + _bodies(scene).radius * np.linalg.norm(
+            scene.angular_velocities, axis=1
+        )
+        awake = free & ~self.asleep
+        resting = awake & (speed < self.speed)
+        moving = awake & ~resting
+        self.rest[resting] += 1
+        self.rest[~resting] = 0
+        if moving.any() and (self.asleep.any() or resting.any()):
+            # bodies near a moving one: sleepers wake, resting ones keep counting from zero
+            _, pairs = scene.configuration(scene.positions, scene.orientations)
+            a, b = pairs[:, 0], pairs[:, 1]
+            near = np.concatenate([a[moving[b]], b[moving[a]]])
+            woken = near[self.asleep[near]]
+            self.asleep[woken] = False
+            self.rest[near] = 0
+        self.asleep |= free & (self.rest >= self.steps)

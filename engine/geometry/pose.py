@@ -1,0 +1,93 @@
+"""Rigid poses: a position and a unit quaternion (w, x, y, z)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from engine.errors import InvalidArgumentError
+
+__all__ = ["Pose"]
+
+_UNIT_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Placement of a body: ``world = rotation @ body + position``.
+
+    Parameters
+    ----------
+    position : (3,) float
+    orientation : (4,) float — unit quaternion (w, x, y, z); a norm within 1e-6 of 1
+        is renormalised, anything else is an error
+    """
+
+    position: np.ndarray
+    orientation: np.ndarray
+
+    def __post_init__(self) -> None:
+        p = _vector(self.position, 3, "position")
+        q = _vector(self.orientation, 4, "orientation")
+        norm = float(np.linalg.norm(q))
+        if abs(norm - 1.0) > _UNIT_TOLERANCE:
+            raise InvalidArgumentError(
+                f"orientation must be a unit quaternion (w, x, y, z); its norm is {norm:.6g}"
+            )
+        q = q / norm
+        p.flags.writeable = q.flags.writeable = False  # the rotation is cached
+        object.__setattr__(self, "position", p)
+        object.__setattr__(self, "orientation", q)
+
+    @classmethod
+    def identity(cls) -> Pose:
+        return cls(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+
+    @cached_property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) float64 rotation matrix (read-only)."""
+        w, x, y, z = self.orientation
+        rot = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        rot.flags.writeable = False
+        return rot
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Body-frame ``points (..., 3)`` to the world frame."""
+        return np.asarray(points, dtype=np.float64) @ self.rotation.T + self.position
+
+    def inverse(self) -> Pose:
+        w, x, y, z = self.orientation
+        conj = np.array([w, -x, -y, -z])
+        return Pose(-(self.rotation.T @ self.position), conj)
+
+    def compose(self, other: Pose) -> Pose:
+        """``self ∘ other``: apply ``other`` first, then ``self``."""
+        w1, x1, y1, z1 = self.orientation
+        w2, x2, y2, z2 = other.orientation
+        q = np.array(
+            [
+                w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            ]
+        )
+        return Pose(self.apply(other.position), q / np.linalg.norm(q))
+
+
+def _vector(value, n: int, name: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)  # a copy: the pose owns it
+    except (TypeError, ValueError):
+        raise InvalidArgumentError(f"{name} must be {n} numbers, got {value!r}") from None
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise InvalidArgumentError(f"{name} must be {n} finite numbers, got {value!r}")
+    return arr

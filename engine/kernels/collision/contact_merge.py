@@ -1,0 +1,129 @@
+"""Contact points from closest-point pairs, merged (the paper's implementation remark)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.kernels.jit import JIT
+
+_f64 = np.float64
+
+
+@njit(**JIT)
+def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a, setup, out):
+    """Contacts of one body pair from the leaf pairs a search found; returns ``(m, k)``.
+
+    ``found = (i, j, distance, point_a, point_b, status)`` as written by
+    :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` (``point_* (3, cap)``, in
+    A's frame; the first ``count`` rows are used); ``face_a[i]``, ``face_b[j]`` map node
+    indices to faces; ``keep_all`` keeps every row, else only ``status == 1``
+    (certified contacts of the iterative kernel); ``normals_a (F, 3)`` float64 unit
+    face normals of A. ``setup = (ε_a, ε_b, tiny, merge radius, rotation (3, 3),
+    position (3,))``: leaf ε of each body, the gap below which the two closest
+    points count as coincident, and A's pose.
+
+    Writes ``out = (pairs (n, 2) int64, points, normals (n, 3), overlaps (n,))``
+    (float64, world frame): the first ``m`` rows of ``pairs`` are the kept
+    (face of A, face of B) pairs in lexicographic order; the first ``k`` rows of
+    the others are the merged contacts. A contact lies on the closest-point
+    segment p→q, weighted by the ε's; its normal is (q − p)/|q − p| (A's face
+    normal when the points coincide); its overlap is ε_a + ε_b − d, clipped to
+    [0, ε_a + ε_b]. Points closer than the merge radius are merged greedily,
+    deepest first, into their average (normals averaged and renormalised — a
+    cancelling sum keeps the cluster's first normal — overlaps averaged).
+    """
+    node_i, node_j, distance, point_a, point_b, status = found
+    ea, eb, tiny, radius, rotation, position = setup
+    out_pairs, out_points, out_normals, out_overlaps = out
+    n = count
+    rows = np.empty(n, np.int64)
+    keys = np.empty(n, np.int64)
+    m = 0
+    for t in range(n):
+        if keep_all or status[t] == 1:
+            rows[m] = t
+            keys[m] = face_a[node_i[t]] * n_faces_b + face_b[node_j[t]]
+            m += 1
+    order = np.argsort(keys[:m])
+    weight = 0.5 if ea + eb == 0 else ea / (ea + eb)
+    points = np.empty((m, 3))
+    normals = np.empty((m, 3))
+    overlaps = np.empty(m)
+    for s in range(m):
+        t = rows[order[s]]
+        fa = face_a[node_i[t]]
+        out_pairs[s, 0], out_pairs[s, 1] = fa, face_b[node_j[t]]
+        p0, p1, p2 = _f64(point_a[0, t]), _f64(point_a[1, t]), _f64(point_a[2, t])
+        g0, g1, g2 = _f64(point_b[0, t]) - p0, _f64(point_b[1, t]) - p1, _f64(point_b[2, t]) - p2
+        points[s, 0], points[s, 1], points[s, 2] = (
+            p0 + weight * g0,
+            p1 + weight * g1,
+            p2 + weight * g2,
+        )
+        length = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+        # decide on the points' own gap: a (float32) distance can be positive while
+        # the two points round to the same coordinates
+        if length > tiny:
+            normals[s, 0], normals[s, 1], normals[s, 2] = g0 / length, g1 / length, g2 / length
+        else:
+            for c in range(3):
+                normals[s, c] = normals_a[fa, c]
+        overlaps[s] = min(max(ea + eb - _f64(distance[t]), 0.0), ea + eb)
+    k = _merge(points, normals, overlaps, radius, out_points, out_normals, out_overlaps)
+    for s in range(k):  # to the world frame
+        p0, p1, p2 = out_points[s, 0], out_points[s, 1], out_points[s, 2]
+        n0, n1, n2 = out_normals[s, 0], out_normals[s, 1], out_normals[s, 2]
+        for c in range(3):
+            r0, r1, r2 = rotation[c, 0], rotation[c, 1], rotation[c, 2]
+            out_points[s, c] = r0 * p0 + r1 * p1 + r2 * p2 + position[c]
+            out_normals[s, c] = r0 * n0 + r1 * n1 + r2 * n2
+    return m, k
+
+
+@njit(**JIT)
+def _merge(points, normals, overlaps, radius, out_points, out_normals, out_overlaps):
+    """Greedy merging (see :func:`contact_kernel`) into the ``out_*`` rows; returns the count."""
+    m = points.shape[0]
+    order = np.argsort(-overlaps, kind="mergesort")
+    label = np.empty(m, np.int64)
+    first = np.empty((m, 3))  # each cluster's first point, then its first normal
+    k = 0
+    limit = radius * radius
+    for t in range(m):
+        s = order[t]
+        best, best_d2 = -1, limit
+        for c in range(k):
+            d2 = 0.0
+            for x in range(3):
+                d2 += (first[c, x] - points[s, x]) ** 2
+            if d2 < best_d2:
+                best, best_d2 = c, d2
+        if best < 0:
+            for x in range(3):
+                first[k, x] = points[s, x]
+            best = k
+            k += 1
+        label[s] = best
+    count = np.zeros(k)
+    out_points[:k] = 0.0
+    out_normals[:k] = 0.0
+    out_overlaps[:k] = 0.0
+    for t in range(m):
+        s = order[t]
+        c = label[s]
+        if count[c] == 0:
+            for x in range(3):
+                first[c, x] = normals[s, x]
+        count[c] += 1
+        out_overlaps[c] += overlaps[s]
+        for x in range(3):
+            out_points[c, x] += points[s, x]
+            out_normals[c, x] += normals[s, x]
+    for c in range(k):
+        out_overlaps[c] /= count[c]
+        norm = np.sqrt(out_normals[c, 0] ** 2 + out_normals[c, 1] ** 2 + out_normals[c, 2] ** 2)
+        for x in range(3):
+            out_points[c, x] /= count[c]
+            out_normals[c, x] = out_normals[c, x] / norm if norm > 1e-12 else first[c, x]
+    return k

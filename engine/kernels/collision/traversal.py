@@ -1,0 +1,346 @@
+"""Level-synchronous multiresolution contact query of two posed surrogate trees.
+
+One call per body pair does the whole query: B's nodes are moved into A's frame
+lazily (a node when the traversal first reaches it), surrogate ε get their
+safety margin, the front of node pairs is traversed, and the leaf pairs found
+become merged contacts.
+
+The front is a list of node pairs, starting at the two roots. Each level is split
+into leaf–leaf pairs, streamed through :func:`~engine.kernels.geometry.triangle_batch.listed_kernel`
+with the leaf parameters (their contacts are final), and pairs with a surrogate,
+streamed with the surrogate parameters (iterative, or exact): a pair reported in
+contact or not converged is unfolded — the node with the larger ε is replaced by
+its children (a leaf is never unfolded) — into the next level's front.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.kernels.collision.contact_merge import contact_kernel
+from engine.kernels.collision.rigid import margin_kernel, move_kernel
+from engine.kernels.geometry.triangle_batch import (
+    STAT_SPHERES,
+    ZERO,
+    listed_kernel,
+    listed_workspace,
+    result_buffers,
+)
+from engine.kernels.jit import INLINE, JIT
+
+
+@njit(**JIT)
+def query_kernel(
+    body_a, body_b, pose, margin, inflate, coarse_params, leaf_params, contact, stats, levels
+):
+    """Contacts between two posed trees; returns ``(depth, unfoldings, result, near)``.
+
+    ``body_a = (coords (Na, 9), frames (Na, 14), epsilon (Na,) float64, face,
+    first_child, child_count (Na,) int32, spheres (Na, 4) float64)``: A's nodes
+    prepared in the query's precision, row-major, and each node's bounding sphere
+    (centre, radius) of its covered leaves' ε-regions; ``body_b``: the same for B
+    except that coordinates and frames are B's float64 master arrays in its body
+    frame. ``pose = (rotation (3, 3), shift (3,))`` maps B's frame to A's.
+    Surrogate ε get ``margin`` added.
+
+    A node pair whose bounding spheres are apart (by more than ``margin``) cannot
+    hold a leaf pair in contact: it is pruned before any triangle comparison,
+    the root pair included; ``stats[STAT_SPHERES]`` counts such pairs.
+    ``contact = (faces of B, keep_all, normals_a, setup)`` as in
+    :func:`~engine.kernels.collision.contact_merge.contact_kernel`. ``stats`` (int64) is
+    added to; ``levels`` (int64) receives the pairs evaluated per level (levels
+    beyond its length are counted but not stored).
+
+    ``depth`` is the number of levels, ``unfoldings`` the node pairs unfolded and
+    ``result = (pairs, points, normals, overlaps)`` the contacts, as
+    ``contact_kernel`` writes them (trimmed; world frame). ``near (m, 2)`` int64 are
+    the leaf node pairs within their ε plus ``2·inflate``: with ``inflate > 0`` the
+    traversal runs with every ε grown by ``inflate`` (bounding spheres too), and the
+    contacts are those of ``near`` at the true ε — a superset list that stays valid
+    while B moves by less than ``2·inflate`` relative to A (see :func:`listed_query`).
+    """
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
+    rotation, shift = pose
+    dtype = coords_a.dtype
+    nb = master_coords.shape[0]
+    centres_b = np.empty((nb, 3))  # B's sphere centres in A's frame, once needed
+    centred = np.zeros(nb, np.bool_)
+    coords_b = np.empty((nb, 9), dtype)
+    frames_b = np.empty((nb, 14), dtype)
+    moved = np.zeros(nb, np.bool_)
+    to_move = np.zeros(nb, np.int64)  # the root first
+    move_kernel(master_coords, master_frames, to_move[:1], rotation, shift, coords_b, frames_b)
+    moved[0] = True
+    eps_a = np.empty(epsilon_a.shape[0], dtype)
+    eps_b = np.empty(nb, dtype)
+    margin_kernel(epsilon_a, face_a, margin, eps_a)
+    margin_kernel(epsilon_b, face_b, margin, eps_b)
+    if inflate > 0.0:
+        eps_a += inflate
+        eps_b += inflate
+    reach = margin + 2.0 * inflate  # added to the sum of two bounding radii
+    rm = (coords_a, frames_a, coords_b, frames_b)
+    buffers = listed_workspace(coords_a)
+    found = result_buffers(256, coords_a)
+    hits = result_buffers(256, coords_a)
+    pruned = ZERO
+    if _apart(spheres_a, ZERO, spheres_b, centres_b, centred, ZERO, rotation, shift, reach):
+        front = np.zeros((0, 2), np.int64)
+        pruned += 1
+    else:
+        front = np.zeros((1, 2), np.int64)
+    finest = np.empty((256, 2), np.int64)
+    coarse = np.empty((256, 2), np.int64)
+    n = ZERO
+    depth = ZERO
+    unfoldings = ZERO
+    nf = ZERO  # leaf pairs, evaluated together once the front is exhausted
+    while front.shape[0] > 0:
+        m = front.shape[0]
+        if depth < levels.shape[0]:
+            levels[depth] = m
+        depth += 1
+        if coarse.shape[0] < m:
+            coarse = np.empty((2 * m, 2), np.int64)
+        if finest.shape[0] < nf + m:
+            finest = _grown_pairs(finest, nf, nf + m)
+        nc = ZERO
+        for t in range(m):
+            i, j = front[t, 0], front[t, 1]
+            if face_a[i] >= 0 and face_b[j] >= 0:
+                finest[nf, 0], finest[nf, 1] = i, j
+                nf += 1
+            else:
+                coarse[nc, 0], coarse[nc, 1] = i, j
+                nc += 1
+        if nc == 0:
+            break
+        hits = _room(hits, ZERO, nc)
+        h = listed_kernel(
+            rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, buffers, hits, ZERO, stats
+        )
+        hi, hj = hits[0], hits[1]
+        unfoldings += h
+        size = ZERO
+        for k in range(h):
+            i, j = hi[k], hj[k]
+            size += max(count_a[i], 1) * max(count_b[j], 1)
+        front = np.empty((size, 2), np.int64)
+        r = ZERO
+        new = ZERO
+        for k in range(h):
+            i, j = hi[k], hj[k]
+            # unfold every surrogate of the pair (a leaf stays): one level per pair
+            a0, a1 = (first_a[i], first_a[i] + count_a[i]) if face_a[i] < 0 else (i, i + 1)
+            b0, b1 = (first_b[j], first_b[j] + count_b[j]) if face_b[j] < 0 else (j, j + 1)
+            for ca in range(a0, a1):
+                if b1 - b0 > 1 and _apart(
+                    spheres_a, ca, spheres_b, centres_b, centred, j, rotation, shift, reach
+                ):
+                    pruned += b1 - b0
+                    continue
+                for cb in range(b0, b1):
+                    if _apart(
+                        spheres_a, ca, spheres_b, centres_b, centred, cb, rotation, shift, reach
+                    ):
+                        pruned += 1
+                        continue
+                    if not moved[cb]:
+                        moved[cb] = True
+                        to_move[new] = cb
+                        new += 1
+                    front[r, 0], front[r, 1] = ca, cb
+                    r += 1
+        front = front[:r]
+        move_kernel(
+            master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b
+        )
+    found = _room(found, ZERO, nf)
+    n = listed_kernel(rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, buffers, found, ZERO, stats)
+    stats[STAT_SPHERES] += pruned
+    near = np.empty((n, 2), np.int64)
+    near[:, 0] = found[0][:n]
+    near[:, 1] = found[1][:n]
+    if inflate > 0.0:  # the near pairs at their true ε
+        margin_kernel(epsilon_a, face_a, margin, eps_a)
+        margin_kernel(epsilon_b, face_b, margin, eps_b)
+        n = listed_kernel(rm, eps_a, eps_b, near, ZERO, n, leaf_params, buffers, found, ZERO, stats)
+    return depth, unfoldings, _contacts(found, n, face_a, face_b, contact), near
+
+
+@njit(**JIT)
+def listed_query(body_a, body_b, pose, margin, near, leaf_params, contact, stats):
+    """Contacts of the listed leaf node pairs ``near (m, 2)`` only (arguments as in
+    :func:`query_kernel`); returns ``result``. B's listed nodes are moved by the same
+    :func:`~engine.kernels.collision.rigid.move_kernel` as in the traversal, so each pair gives
+    the traversal's bits, and ``result`` equals the traversal's whenever ``near`` holds
+    every leaf pair in contact."""
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
+    nb = master_coords.shape[0]
+    m = near.shape[0]
+    moved = np.zeros(nb, np.bool_)
+    to_move = np.empty(m, np.int64)
+    new = ZERO
+    for t in range(m):
+        j = near[t, 1]
+        if not moved[j]:
+            moved[j] = True
+            to_move[new] = j
+            new += 1
+    rm, eps_a, eps_b = _posed(body_a, body_b, pose, margin, to_move[:new])
+    found = result_buffers(max(m, 1), coords_a)
+    n = listed_kernel(
+        rm, eps_a, eps_b, near, ZERO, m, leaf_params, listed_workspace(coords_a), found, ZERO, stats
+    )
+    return _contacts(found, n, face_a, face_b, contact)
+
+
+@njit(**JIT)
+def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params, contact, stats):
+    """One evaluation of a multiscale front: the node pairs ``nodes (m, 2)`` (int64),
+    each as the traversal evaluates it (bounding spheres first; leaf pairs with the
+    leaf parameters, pairs with a surrogate with the surrogate ones); arguments as in
+    :func:`query_kernel`. Returns ``(status, result, hits)``: ``status (m,)`` int8 of
+    each entry (``NO_CONTACT`` when its spheres are apart), ``result`` the merged
+    contacts of the leaf entries and ``hits`` the surrogate entries in contact or not
+    converged, as :func:`~engine.kernels.geometry.triangle_batch.result_buffers` trimmed to them
+    (node pairs, distance, points in A's frame, status)."""
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
+    rotation, shift = pose
+    nb = master_coords.shape[0]
+    m = nodes.shape[0]
+    centres_b = np.empty((nb, 3))
+    centred = np.zeros(nb, np.bool_)
+    moved = np.zeros(nb, np.bool_)
+    to_move = np.empty(m, np.int64)
+    leaves = np.empty((m, 2), np.int64)
+    coarse = np.empty((m, 2), np.int64)
+    entry_of_leaf = np.empty(m, np.int64)  # the entry each listed row came from
+    entry_of_coarse = np.empty(m, np.int64)
+    new, nl, nc, pruned = ZERO, ZERO, ZERO, ZERO
+    for t in range(m):
+        i, j = nodes[t, 0], nodes[t, 1]
+        if _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, margin):
+            pruned += 1
+            continue
+        if not moved[j]:
+            moved[j] = True
+            to_move[new] = j
+            new += 1
+        if face_a[i] >= 0 and face_b[j] >= 0:
+            leaves[nl, 0], leaves[nl, 1] = i, j
+            entry_of_leaf[nl] = t
+            nl += 1
+        else:
+            coarse[nc, 0], coarse[nc, 1] = i, j
+            entry_of_coarse[nc] = t
+            nc += 1
+    stats[STAT_SPHERES] += pruned
+    rm, eps_a, eps_b = _posed(body_a, body_b, pose, margin, to_move[:new])
+    buffers = listed_workspace(coords_a)
+    hits = result_buffers(max(nc, 1), coords_a)
+    h = listed_kernel(rm, eps_a, eps_b, coarse, ZERO, nc, coarse_params, buffers, hits, ZERO, stats)
+    found = result_buffers(max(nl, 1), coords_a)
+    n = listed_kernel(rm, eps_a, eps_b, leaves, ZERO, nl, leaf_params, buffers, found, ZERO, stats)
+    # each reported pair's status onto its entry: listed_kernel reports a subsequence of
+    # its list, in order, so one forward walk over the list finds every row
+    status = np.zeros(m, np.int8)
+    for out, k, listed, entry, rows in (
+        (hits, h, coarse, entry_of_coarse, nc),
+        (found, n, leaves, entry_of_leaf, nl),
+    ):
+        p = ZERO
+        for r in range(k):
+            while p < rows and (listed[p, 0] != out[0][r] or listed[p, 1] != out[1][r]):
+                p += 1
+            status[entry[min(p, rows - 1)]] = out[5][r]
+    trimmed = (
+        hits[0][:h].copy(),
+        hits[1][:h].copy(),
+        hits[2][:h].copy(),
+        hits[3][:, :h].copy(),
+        hits[4][:, :h].copy(),
+        hits[5][:h].copy(),
+    )
+    return status, _contacts(found, n, face_a, face_b, contact), trimmed
+
+
+@njit(**JIT)
+def _posed(body_a, body_b, pose, margin, moving):
+    """``(rm, eps_a, eps_b)`` for :func:`~engine.kernels.geometry.triangle_batch.listed_kernel`: B's
+    nodes ``moving`` (int64) moved into A's frame (other rows unset) and both trees' ε with
+    the ``margin`` on surrogates, in A's precision."""
+    coords_a, frames_a, epsilon_a, face_a = body_a[0], body_a[1], body_a[2], body_a[3]
+    master_coords, master_frames, epsilon_b, face_b = body_b[0], body_b[1], body_b[2], body_b[3]
+    dtype = coords_a.dtype
+    nb = master_coords.shape[0]
+    coords_b = np.empty((nb, 9), dtype)
+    frames_b = np.empty((nb, 14), dtype)
+    move_kernel(master_coords, master_frames, moving, pose[0], pose[1], coords_b, frames_b)
+    eps_a = np.empty(epsilon_a.shape[0], dtype)
+    eps_b = np.empty(nb, dtype)
+    margin_kernel(epsilon_a, face_a, margin, eps_a)
+    margin_kernel(epsilon_b, face_b, margin, eps_b)
+    return (coords_a, frames_a, coords_b, frames_b), eps_a, eps_b
+
+
+@njit(**JIT)
+def _contacts(found, n, face_a, face_b, contact):
+    """The merged contacts of the first ``n`` rows of ``found`` (trimmed; world frame)."""
+    n_faces_b, keep_all, normals_a, setup = contact
+    result = (
+        np.empty((n, 2), np.int64),
+        np.empty((n, 3)),
+        np.empty((n, 3)),
+        np.empty(n),
+    )
+    pairs, points, normals, overlaps = result
+    count, k = contact_kernel(
+        found, n, face_a, face_b, n_faces_b, keep_all, normals_a, setup, result
+    )
+    return pairs[:count], points[:k], normals[:k], overlaps[:k]
+
+
+@njit(**INLINE)
+def _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, margin):
+    """Bounding spheres of A's node ``i`` and B's node ``j`` are apart by more than
+    ``margin`` (B's centre is moved into A's frame on first use)."""
+    if not centred[j]:
+        x, y, z = spheres_b[j, 0], spheres_b[j, 1], spheres_b[j, 2]
+        for c in range(3):
+            centres_b[j, c] = (
+                rotation[c, 0] * x + rotation[c, 1] * y + rotation[c, 2] * z + shift[c]
+            )
+        centred[j] = True
+    dx = spheres_a[i, 0] - centres_b[j, 0]
+    dy = spheres_a[i, 1] - centres_b[j, 1]
+    dz = spheres_a[i, 2] - centres_b[j, 2]
+    reach = spheres_a[i, 3] + spheres_b[j, 3] + margin
+    return dx * dx + dy * dy + dz * dz > reach * reach
+
+
+@njit(**JIT)
+def _grown_pairs(pairs, n, need):
+    """``(max(need, 2·len), 2)`` int64 rows holding the first ``n`` rows of ``pairs``."""
+    grown = np.empty((max(need, 2 * pairs.shape[0]), 2), np.int64)
+    grown[:n] = pairs[:n]
+    return grown
+
+
+@njit(**JIT)
+def _room(out, n, need):
+    """``out`` if it holds ``need`` rows, else larger buffers with its first ``n`` rows."""
+    if out[0].shape[0] >= need:
+        return out
+    grown = result_buffers(max(need, 2 * out[0].shape[0]), out[2])
+    grown[0][:n] = out[0][:n]
+    grown[1][:n] = out[1][:n]
+    grown[2][:n] = out[2][:n]
+    grown[3][:, :n] = out[3][:, :n]
+    grown[4][:, :n] = out[4][:, :n]
+    grown[5][:n] = out[5][:n]
+    return grown

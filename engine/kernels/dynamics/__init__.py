@@ -1,0 +1,1 @@
+"""Kernels of the dynamics: contact forces and the rigid-body motion update."""

@@ -1,0 +1,124 @@
+"""Rigid-body motion kernels (paper §2, Algorithms 1 and 3): the update of the state from
+forces and torques, and rotation matrices of the orientations.
+
+State arrays (float64, world frame): ``positions (n, 3)`` centres of mass,
+``orientations (n, 4)`` unit quaternions (w, x, y, z), ``velocities (n, 3)``,
+``angular_velocities (n, 3)``; ``inverse_mass (n,)``, ``inertia`` and
+``inverse_inertia (n, 3, 3)`` (body frame, about the centre of mass; inverses 0 for
+fixed bodies).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.kernels.jit import JIT
+
+
+@njit(**JIT)
+def rotation_matrices(orientations, out):
+    """``out (n, 3, 3)``: rotation of each unit quaternion ``orientations (n, 4)``."""
+    for b in range(orientations.shape[0]):
+        _rotation(orientations[b], out[b])
+
+
+@njit(**JIT)
+def advance(start, force, torque, inverse_mass, inertia_body, inverse_inertia, dt, out):
+    """One Euler update from the step's start: ``v' = v + dt·F/m``, ``L' = L + dt·τ``,
+    ``x' = x + dt·v'``, ``q' = exp(dt·ω̄/2)·q`` with ω̄ = I_w(q)⁻¹L', then ω' = I_w(q')⁻¹L'.
+
+    ``start = (positions, orientations, velocities, angular_velocities)`` at the step's
+    start; ``out`` the same four arrays for the result (may not alias ``start``). Angular
+    momentum L = I_w ω (I_w = R I R⁻¹ the world inertia) is what the torque changes, so
+    it is conserved exactly; the orientation turns by the mean angular velocity. Fixed
+    bodies (inverse mass 0) keep their pose and velocities.
+    """
+    x0, q0, v0, w0 = start
+    x1, q1, v1, w1 = out
+    rot = np.empty((3, 3))
+    inv_world = np.empty((3, 3))
+    inertia = np.empty((3, 3))
+    momentum = np.empty(3)
+    omega = np.empty(3)
+    for b in range(x0.shape[0]):
+        if inverse_mass[b] == 0.0:
+            for c in range(3):
+                x1[b, c], v1[b, c], w1[b, c] = x0[b, c], v0[b, c], w0[b, c]
+            for c in range(4):
+                q1[b, c] = q0[b, c]
+            continue
+        for c in range(3):
+            v1[b, c] = v0[b, c] + dt * force[b, c] * inverse_mass[b]
+            x1[b, c] = x0[b, c] + dt * v1[b, c]
+        _rotation(q0[b], rot)
+        _conjugate(rot, inverse_inertia[b], inv_world)
+        _conjugate(rot, inertia_body[b], inertia)
+        for i in range(3):
+            momentum[i] = dt * torque[b, i]
+            for j in range(3):
+                momentum[i] += inertia[i, j] * w0[b, j]
+        _times(inv_world, momentum, omega)
+        _turn(q0[b], omega, dt, q1[b])
+        _rotation(q1[b], rot)
+        _conjugate(rot, inverse_inertia[b], inv_world)
+        _times(inv_world, momentum, omega)
+        for c in range(3):
+            w1[b, c] = omega[c]
+
+
+@njit(**JIT)
+def _rotation(q, out):
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    out[0, 0], out[0, 1], out[0, 2] = (
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+    )
+    out[1, 0], out[1, 1], out[1, 2] = (
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+    )
+    out[2, 0], out[2, 1], out[2, 2] = (
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
+    )
+
+
+@njit(**JIT)
+def _conjugate(rot, matrix, out):
+    """``out = R · M · Rᵀ`` (a body-frame tensor in the world frame)."""
+    for i in range(3):
+        for j in range(3):
+            total = 0.0
+            for k in range(3):
+                for m in range(3):
+                    total += rot[i, k] * matrix[k, m] * rot[j, m]
+            out[i, j] = total
+
+
+@njit(**JIT)
+def _times(m, v, out):
+    """``out = m @ v`` for a 3×3 ``m`` and a 3-vector ``v``."""
+    for i in range(3):
+        out[i] = m[i, 0] * v[0] + m[i, 1] * v[1] + m[i, 2] * v[2]
+
+
+@njit(**JIT)
+def _turn(q, omega, dt, out):
+    """``out = exp(dt·ω/2) ⊗ q``, renormalised (ω in the world frame)."""
+    angle = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2) * dt
+    if angle > 0.0:
+        s = np.sin(0.5 * angle) / angle * dt
+        rw, rx, ry, rz = np.cos(0.5 * angle), omega[0] * s, omega[1] * s, omega[2] * s
+    else:
+        rw, rx, ry, rz = 1.0, 0.0, 0.0, 0.0
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    nw = rw * w - rx * x - ry * y - rz * z
+    nx = rw * x + rx * w + ry * z - rz * y
+    ny = rw * y - rx * z + ry * w + rz * x
+    nz = rw * z + rx * y - ry * x + rz * w
+    norm = np.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    out[0], out[1], out[2], out[3] = nw / norm, nx / norm, ny / norm, nz / norm

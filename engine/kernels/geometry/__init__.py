@@ -1,0 +1,1 @@
+"""Kernels of the geometry: triangle distances (exact, iterative, batched), vertex welding."""

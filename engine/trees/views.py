@@ -1,0 +1,201 @@
+"""Derived arrays of a surrogate tree, computed on first use and kept with the tree.
+
+A :class:`~engine.trees.tree.SurrogateTree` is immutable, so whatever the searches derive
+from it (the leaf of each face, prepared triangle sets, bounding spheres, writable copies
+of the traversal arrays) is computed once. :class:`TreeGeometry` holds what depends on the
+triangles only and is shared by a tree and its ε-shifted copies
+(:meth:`~engine.trees.tree.SurrogateTree.with_leaf_epsilon`); :class:`TreeViews` adds what
+depends on the node ε. Every tree has one, as ``tree.views``.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from typing import NamedTuple
+
+import numpy as np
+
+from engine.geometry.distance import TriangleSet
+from engine.geometry.mesh import Mesh
+
+__all__ = ["DistanceBounds", "TreeGeometry", "TreeStructure", "TreeViews"]
+
+
+class TreeStructure(NamedTuple):
+    """Writable copies of a tree's traversal arrays, as every kernel takes them (the tree's
+    own arrays are read-only, and Numba compiles a kernel once more for every
+    read-only/writable combination of its arguments).
+
+    epsilon : (N,) float64; face : (N,) int32 (−1 for surrogates); first_child,
+    child_count : (N,) int32
+    """
+
+    epsilon: np.ndarray
+    face: np.ndarray
+    first_child: np.ndarray
+    child_count: np.ndarray
+
+
+class DistanceBounds(NamedTuple):
+    """The pose-independent node data of the distance branch and bound
+    (:mod:`engine.collision.proximity`), body frame.
+
+    gap : (N,) float64 — a surrogate's ε beyond the leaf ε (0 for leaves): a lower bound
+        on the distance of its covered leaves is its own distance minus this
+    leaf : (N,) bool; first_child, child_count : (N,) int64
+    representative : (N,) int64 — the covered leaf whose centroid is nearest the node's
+    centre : (N, 3) float64; radius : (N,) float64 — bounding sphere of the covered
+        triangles (without the leaf ε)
+    """
+
+    gap: np.ndarray
+    leaf: np.ndarray
+    first_child: np.ndarray
+    child_count: np.ndarray
+    representative: np.ndarray
+    centre: np.ndarray
+    radius: np.ndarray
+
+
+class TreeGeometry:
+    """What depends on a tree's triangles only (shared by its ε-shifted copies).
+
+    ``triangles (N, 3, 3)``, ``face (N,)``, ``parent (N,)`` of the tree it was made for.
+    """
+
+    def __init__(self, triangles: np.ndarray, face: np.ndarray, parent: np.ndarray) -> None:
+        self._triangles, self._face, self._parent = triangles, face, parent
+        self._node_sets: dict[tuple[str, bool], TriangleSet] = {}
+        self._mesh: Mesh | None = None
+
+    @cached_property
+    def face_nodes(self) -> np.ndarray:
+        """(F,) int64 node index of each face's leaf."""
+        leaves = np.flatnonzero(self._face >= 0)
+        return leaves[np.argsort(self._face[leaves])]
+
+    @cached_property
+    def faces(self) -> np.ndarray:
+        """(F,) int32 0 … F−1: the face of each leaf when leaves are indexed in face order."""
+        return np.arange(len(self.face_nodes), dtype=np.int32)
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) float64 unit normals of the faces, body frame."""
+        face = self._triangles[self.face_nodes]
+        normal = np.cross(face[:, 1] - face[:, 0], face[:, 2] - face[:, 0])
+        return normal / np.linalg.norm(normal, axis=1, keepdims=True)
+
+    @cached_property
+    def master(self) -> TriangleSet:
+        """Every node prepared in float64 (the source the searches move and round)."""
+        return TriangleSet(self._triangles, "float64", "tree")
+
+    def node_set(self, precision: str, leaves_only: bool) -> TriangleSet:
+        """Every node (or the leaves, in face order) prepared in ``precision``."""
+        key = (precision, leaves_only)
+        if key not in self._node_sets:
+            index = self.face_nodes if leaves_only else np.arange(len(self._face))
+            self._node_sets[key] = self.master.subset(index, precision)
+        return self._node_sets[key]
+
+    @cached_property
+    def extent(self) -> float:
+        """Largest absolute coordinate of the nodes, body frame."""
+        return float(np.abs(self._triangles).max())
+
+    @cached_property
+    def representatives(self) -> np.ndarray:
+        """(N,) int64: for each node, the covered leaf whose centroid is nearest the node
+        triangle's centroid (a leaf represents itself; ties go to the lower index)."""
+        centroid = self._triangles.mean(axis=1)
+        leaves = np.flatnonzero(self._face >= 0)
+        owners, members, dist = [leaves], [leaves], [np.zeros(len(leaves))]
+        node, leaf = self._parent[leaves].astype(np.int64), leaves
+        while len(node):
+            keep = node >= 0
+            node, leaf = node[keep], leaf[keep]
+            owners.append(node)
+            members.append(leaf)
+            dist.append(np.linalg.norm(centroid[leaf] - centroid[node], axis=1))
+            node = self._parent[node].astype(np.int64)
+        owner, member, d = (np.concatenate(x) for x in (owners, members, dist))
+        order = np.lexsort((member, d, owner))  # by owner, then distance, then index
+        first = np.ones(len(order), bool)
+        first[1:] = owner[order][1:] != owner[order][:-1]
+        out = np.empty(len(self._face), np.int64)
+        out[owner[order][first]] = member[order][first]
+        return out
+
+    @property
+    def mesh(self) -> Mesh:
+        """The mesh of the leaves (faces in face order, vertices deduplicated), unless the
+        mesh the tree was built from was attached with :meth:`attach_mesh`."""
+        if self._mesh is None:
+            tris = self._triangles[self.face_nodes].reshape(-1, 3)
+            vertices, faces = np.unique(tris, axis=0, return_inverse=True)
+            self._mesh = Mesh(vertices, faces.reshape(-1, 3))
+        return self._mesh
+
+    def attach_mesh(self, mesh: Mesh) -> None:
+        """Use ``mesh`` (the one the tree was built from) as :attr:`mesh`."""
+        self._mesh = mesh
+
+
+class TreeViews:
+    """Derived arrays of one tree: its shared :attr:`geometry` and what depends on ε."""
+
+    def __init__(self, tree, geometry: TreeGeometry | None = None) -> None:
+        self._tree = tree
+        self.geometry = (
+            TreeGeometry(tree.triangles, tree.face, tree.parent) if geometry is None else geometry
+        )
+
+    @cached_property
+    def structure(self) -> TreeStructure:
+        """Writable copies of ``(epsilon, face, first_child, child_count)``."""
+        t = self._tree
+        return TreeStructure(
+            *(np.array(a) for a in (t.epsilon, t.face, t.first_child, t.child_count))
+        )
+
+    @cached_property
+    def spheres(self) -> np.ndarray:
+        """(N, 4) float64 bounding sphere (centre, radius) of each node's covered leaves'
+        ε-regions, body frame: centred on the bounding box of the covered vertices, radius
+        the farthest covered vertex plus the leaf ε (a ball is convex, so it then holds
+        every covered triangle and its ε-region)."""
+        tree = self._tree
+        out = np.empty((len(tree), 4))
+        low, high = np.empty((len(tree), 3)), np.empty((len(tree), 3))
+        leaves = tree.face >= 0
+        low[leaves], high[leaves] = tree.triangles[leaves].min(1), tree.triangles[leaves].max(1)
+        for node in np.flatnonzero(~leaves)[::-1]:  # children before parents (BFS order)
+            kids = slice(tree.first_child[node], tree.first_child[node] + tree.child_count[node])
+            low[node], high[node] = low[kids].min(0), high[kids].max(0)
+        out[:, :3] = (low + high) / 2
+        radius = np.zeros(len(tree))
+        node = np.flatnonzero(leaves)
+        verts = tree.triangles[node]
+        while len(node):  # every leaf's vertices against the centres of all its ancestors
+            far = np.linalg.norm(verts - out[node, None, :3], axis=2).max(1)
+            np.maximum.at(radius, node, far)
+            keep = tree.parent[node] >= 0
+            node, verts = tree.parent[node][keep], verts[keep]
+        out[:, 3] = radius + tree.leaf_epsilon
+        return out
+
+    @cached_property
+    def distance_bounds(self) -> DistanceBounds:
+        """The node data of the distance branch and bound (:class:`DistanceBounds`)."""
+        tree, ball = self._tree, self.spheres
+        leaf = tree.face >= 0
+        return DistanceBounds(
+            np.where(leaf, 0.0, np.maximum(tree.epsilon - tree.leaf_epsilon, 0.0)),
+            leaf,
+            tree.first_child.astype(np.int64),
+            tree.child_count.astype(np.int64),
+            self.geometry.representatives,
+            ball[:, :3],
+            np.maximum(ball[:, 3] - tree.leaf_epsilon, 0.0),
+        )

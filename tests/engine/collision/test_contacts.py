@@ -1,0 +1,220 @@
+"""Poses and contact detection: the multiresolution search equals the flat exact search."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine import InvalidArgumentError, build_tree, shapes
+from engine.collision.contacts import find_contacts
+from engine.geometry.pose import Pose
+
+SHAPES = {
+    "noisy": lambda: shapes.noisy_sphere(subdivisions=1, eta_r=1.4, seed=3),
+    "stretched": lambda: shapes.stretched_sphere(subdivisions=1, eta=1.8),
+    "torus": lambda: shapes.torus(major_segments=12, minor_segments=6),
+    "box": lambda: shapes.box(extents=(1.6, 1.0, 0.6)),
+    "plane": lambda: shapes.plane(size=(3.0, 3.0), divisions=4),
+}
+PAIRS = [
+    ("noisy", "noisy"),
+    ("noisy", "torus"),
+    ("stretched", "box"),
+    ("torus", "torus"),
+    ("box", "plane"),
+    ("noisy", "plane"),
+]
+POSES_PER_CASE = 100  # x 6 shape pairs x 2 kernels x 2 precisions = 2,400 poses
+
+
+def random_pose(rng: np.random.Generator, position=None) -> Pose:
+    q = rng.normal(size=4)
+    return Pose(rng.normal(size=3) if position is None else position, q / np.linalg.norm(q))
+
+
+@pytest.fixture(scope="module")
+def trees():
+    return {name: build_tree(make(), epsilon=0.03, seed=0) for name, make in SHAPES.items()}
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+@pytest.mark.parametrize("kernel", ["hybrid", "exact"])
+@pytest.mark.parametrize(("name_a", "name_b"), PAIRS)
+def test_multiresolution_equals_flat_exact_search(trees, name_a, name_b, kernel, precision):
+    """Lemma 1: identical finest-level contact pairs for every pose."""
+    rng = np.random.default_rng(abs(hash((name_a, name_b, kernel, precision))) % 2**32)
+    ta, tb = trees[name_a], trees[name_b]
+    reach = ta.bounding_radius + tb.bounding_radius
+    kinds = {"separated": 0, "contact": 0}
+    for _ in range(POSES_PER_CASE):
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        pa = random_pose(rng)
+        pb = random_pose(rng, pa.position + direction * reach * rng.uniform(0.2, 1.1))
+        flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False, precision=precision)
+        tree = find_contacts(ta, pa, tb, pb, kernel=kernel, hierarchy=True, precision=precision)
+        np.testing.assert_array_equal(tree.pairs, flat.pairs)
+        assert tree.stats.comparisons <= flat.stats.comparisons + len(ta) * len(tb)
+        kinds["contact" if len(flat.pairs) else "separated"] += 1
+    assert kinds["contact"] > 0 and kinds["separated"] > 0, kinds
+
+
+def test_contact_points_normals_and_overlaps():
+    ta = tb = build_tree(shapes.icosphere(2), epsilon=0.03)  # surface radius 0.98 ... 1
+    rng = np.random.default_rng(1)
+    seen = 0
+    for gap in np.linspace(-0.3, 0.05, 15):  # overlapping deeply ... just separated
+        pa = random_pose(rng)
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        pb = random_pose(rng, pa.position + direction * (2.0 + gap))
+        c = find_contacts(ta, pa, tb, pb)
+        assert np.isfinite(c.points).all() and np.isfinite(c.normals).all()
+        np.testing.assert_allclose(np.linalg.norm(c.normals, axis=1), 1.0, atol=1e-9)
+        assert ((c.overlaps >= 0) & (c.overlaps <= 0.06 + 1e-12)).all()
+        assert c.stats.merged_contacts == len(c.points) <= c.stats.raw_contacts == len(c.pairs)
+        if len(c.points) and gap >= -0.06:
+            seen += 1
+            # within the halos (no deep interpenetration) normals point from A towards B
+            assert (c.normals @ (pb.position - pa.position) > 0).mean() > 0.9
+    assert seen >= 4
+
+
+def test_touching_and_interpenetrating_faces_give_no_nan(trees):
+    box = trees["box"]
+    for offset in (0.0, 0.3, 0.6):  # faces touching, then boxes interpenetrating
+        c = find_contacts(box, Pose.identity(), box, Pose([1.6 - offset, 0, 0], [1, 0, 0, 0]))
+        assert len(c.pairs) and np.isfinite(c.normals).all() and np.isfinite(c.points).all()
+        np.testing.assert_allclose(np.linalg.norm(c.normals, axis=1), 1.0, atol=1e-9)
+
+
+def test_contacts_do_not_depend_on_where_the_pair_is(trees):
+    ta = tb = trees["torus"]
+    rng = np.random.default_rng(4)
+    pa, pb = random_pose(rng, [0, 0, 0]), random_pose(rng, [0.9, 0.3, 0.1])
+    near = find_contacts(ta, pa, tb, pb)
+    shift = np.array([1e5, -2e5, 3e5])
+    far = find_contacts(
+        ta, Pose(pa.position + shift, pa.orientation), tb, Pose(pb.position + shift, pb.orientation)
+    )
+    np.testing.assert_array_equal(near.pairs, far.pairs)
+    np.testing.assert_allclose(far.points - shift, near.points, atol=1e-8)
+
+
+def test_pose_algebra():
+    rng = np.random.default_rng(0)
+    a, b = random_pose(rng), random_pose(rng)
+    x = rng.normal(size=(5, 3))
+    np.testing.assert_allclose(a.compose(b).apply(x), a.apply(b.apply(x)), atol=1e-12)
+    np.testing.assert_allclose(a.inverse().apply(a.apply(x)), x, atol=1e-12)
+    r = a.rotation
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(
+    ("position", "orientation", "match"),
+    [
+        ([0, 0], [1, 0, 0, 0], "position"),
+        ([0, 0, np.nan], [1, 0, 0, 0], "position"),
+        ([0, 0, 0], [2, 0, 0, 0], "unit quaternion"),
+        ([0, 0, 0], [1, 0, 0], "orientation"),
+        ([0, 0, 0], ["a", 0, 0, 0], "orientation"),
+    ],
+)
+def test_pose_validation(position, orientation, match):
+    with pytest.raises(InvalidArgumentError, match=match):
+        Pose(position, orientation)
+
+
+def test_find_contacts_rejects_wrong_types(trees):
+    with pytest.raises(InvalidArgumentError, match="SurrogateTree"):
+        find_contacts("tree", Pose.identity(), trees["box"], Pose.identity())
+    with pytest.raises(InvalidArgumentError, match="Pose"):
+        find_contacts(trees["box"], (0, 0, 0), trees["box"], Pose.identity())
+
+
+@pytest.mark.parametrize(("name_a", "name_b"), PAIRS[:4])
+def test_active_sets_traversal_equals_flat_search(trees, name_a, name_b):
+    """The paper's Algorithm 5 (traversal="sets") also returns exactly the flat pairs."""
+    rng = np.random.default_rng(7)
+    ta, tb = trees[name_a], trees[name_b]
+    reach = ta.bounding_radius + tb.bounding_radius
+    for _ in range(25):
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        pa = random_pose(rng)
+        pb = random_pose(rng, pa.position + direction * reach * rng.uniform(0.2, 1.1))
+        flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False)
+        sets = find_contacts(ta, pa, tb, pb, traversal="sets")
+        np.testing.assert_array_equal(sets.pairs, flat.pairs)
+
+
+def test_unknown_traversal_is_rejected(trees):
+    with pytest.raises(InvalidArgumentError, match="traversal"):
+        find_contacts(
+            trees["box"], Pose.identity(), trees["box"], Pose.identity(), traversal="depth-first"
+        )
+
+
+def test_merge_averages_clusters_of_close_points():
+    from engine.kernels.collision.contact_merge import _merge
+
+    points = np.array([[0, 0, 0], [0.004, 0, 0], [1, 0, 0], [1, 0.004, 0], [5, 5, 5]], float)
+    normals = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [1, 0, 0]], float)
+    overlaps = np.array([0.02, 0.01, 0.015, 0.005, 0.001])
+    p, n, o = np.empty((5, 3)), np.empty((5, 3)), np.empty(5)
+    k = _merge(points, normals, overlaps, 0.01, p, n, o)
+    p, n, o = p[:k], n[:k], o[:k]
+    assert k == 3  # clusters {0, 1}, {2, 3}, {4}; deepest first
+    np.testing.assert_allclose(p[0], [0.002, 0, 0])
+    np.testing.assert_allclose(n[0], [np.sqrt(0.5), np.sqrt(0.5), 0])
+    np.testing.assert_allclose(o[0], 0.015)
+    np.testing.assert_allclose(p[1], [1, 0.002, 0])
+    np.testing.assert_allclose(n[1], [0, 0, 1])  # cancelling normals: the deepest point's
+    np.testing.assert_allclose(o[1], 0.01)
+    np.testing.assert_allclose(p[2], [5, 5, 5])
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+
+
+@pytest.mark.parametrize("traversal", ["pairs", "sets"])
+def test_statistics_count_the_work(trees, traversal):
+    ta = tb = trees["torus"]
+    pa, pb = Pose.identity(), Pose([0.9, 0.2, 0.0], [1, 0, 0, 0])
+    tree = find_contacts(ta, pa, tb, pb, traversal=traversal)
+    flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False)
+    assert len(tree.pairs) > 0
+    # every level after the root pair exists because some node pair was unfolded
+    assert tree.stats.unfoldings >= len(tree.stats.comparisons_per_level) - 1 >= 1
+    assert tree.stats.comparisons == sum(tree.stats.comparisons_per_level) < flat.stats.comparisons
+    leaves = int((ta.face >= 0).sum()) * int((tb.face >= 0).sum())
+    assert flat.stats.unfoldings == 0 and flat.stats.comparisons == leaves
+
+
+@pytest.mark.parametrize("traversal", ["pairs", "sets"])
+def test_iteration_count_changes_the_work_not_the_pairs(trees, traversal):
+    """More sweeps of the iterative kernel certify more pairs (fewer exact fallbacks);
+    the contact pairs stay those of the flat exact search."""
+    ta, tb = trees["noisy"], trees["torus"]
+    rng = np.random.default_rng(11)
+    fallbacks = {1: 0, 8: 0}
+    for _ in range(30):
+        pa = random_pose(rng)
+        direction = rng.normal(size=3)
+        pb = random_pose(rng, pa.position + direction / np.linalg.norm(direction) * 1.1)
+        flat = find_contacts(ta, pa, tb, pb, kernel="exact", hierarchy=False)
+        for iterations in fallbacks:
+            got = find_contacts(ta, pa, tb, pb, traversal=traversal, iterations=iterations)
+            np.testing.assert_array_equal(got.pairs, flat.pairs)
+            fallbacks[iterations] += got.stats.fallbacks
+        assert len(find_contacts(ta, pa, tb, pb, hierarchy=False, iterations=3).pairs) == len(
+            flat.pairs
+        )
+    assert fallbacks[8] < fallbacks[1], fallbacks
+
+
+@pytest.mark.parametrize("iterations", [0, -1, 1.5, True, "3"])
+def test_bad_iteration_counts_are_rejected(trees, iterations):
+    t, p = trees["box"], Pose.identity()
+    with pytest.raises(InvalidArgumentError, match="iterations"):
+        find_contacts(t, p, t, p, iterations=iterations)

@@ -1,0 +1,84 @@
+"""Bodies at rest sleep (no narrow phase, no integration) and wake when something moving
+comes near."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine import InvalidArgumentError, PaperSpring, Scene, shapes
+from engine.dynamics.sleep import Sleep
+
+
+def _row_of_boxes(sleep) -> Scene:
+    """Four unit boxes resting on a plane (on the edge of their halos), and a ball falling
+    onto the first one from 0.6 above it."""
+    scene = Scene(contact_model=PaperSpring(damping=0.5, friction=0.5), sleep=sleep)
+    scene.add_plane(size=12.0, divisions=4, epsilon=0.01)
+    box = shapes.box()
+    low = 0.5 + 0.998 * (0.01 + 0.01 * box.diameter)
+    for x in (-4.5, -1.5, 1.5, 4.5):
+        scene.add_body(box, position=(x, 0.0, low), epsilon=0.01 * box.diameter)
+    ball = (-4.5, 0.0, 1.0 + 0.6 + 0.3)
+    scene.add_body(shapes.icosphere(2, radius=0.3), position=ball, epsilon=0.006)
+    return scene
+
+
+def test_resting_bodies_sleep_and_a_falling_one_wakes_what_it_hits():
+    asleep = _row_of_boxes(Sleep(speed=1e-3, steps=20))
+    awake = _row_of_boxes(False)
+    rows = {"asleep": [], "awake": []}
+    for _ in range(500):
+        rows["asleep"].append(asleep.step(1e-3))
+        rows["awake"].append(awake.step(1e-3))
+    sleeping = [r.sleeping for r in rows["asleep"]]
+    assert max(sleeping) == 4  # the four boxes slept while the ball fell
+    # the hit box woke when the ball came near, and moved; the others slept on
+    hit = next(i for i, r in enumerate(rows["asleep"]) if i > 60 and r.sleeping < 4)
+    assert rows["asleep"][-1].sleeping == 3 and not asleep.sleep.asleep[1]
+    assert asleep.sleep.asleep[2:5].all()
+    # in every step that began with all four asleep only the falling ball's pair with the
+    # plane was tested (without sleeping: the four box-plane pairs too, every step)
+    quiet = [i for i in range(1, hit) if rows["asleep"][i - 1].sleeping == 4]
+    assert len(quiet) > 100
+    assert all(rows["asleep"][i].body_pairs == 1 for i in quiet)
+    assert all(rows["awake"][i].body_pairs == 5 for i in quiet)
+    # the same outcome as without sleeping, to the sleep threshold's order
+    np.testing.assert_allclose(asleep.positions, awake.positions, atol=2e-3)
+    assert np.isfinite(asleep.velocities).all()
+
+
+def test_anything_from_outside_wakes_every_body():
+    scene = _row_of_boxes(Sleep(steps=5))
+    lifted = scene.positions.copy()
+    lifted[5, 2] += 5.0  # the ball far above: it falls, but nowhere near a box yet
+    scene.set_state(positions=lifted)
+    for _ in range(30):
+        scene.step(1e-3)
+    assert scene.sleep.asleep[1:5].all()
+    scene.set_external_force(2, (5.0, 0.0, 0.0))
+    assert not scene.sleep.asleep.any()
+    scene.step(1e-3)
+    assert np.linalg.norm(scene.velocities[2]) > 0  # pushed, it moves at once
+
+
+def test_bad_sleep_settings():
+    with pytest.raises(InvalidArgumentError):
+        Sleep(speed=0)
+    with pytest.raises(InvalidArgumentError):
+        Sleep(steps=0)
+    with pytest.raises(InvalidArgumentError):
+        Scene(sleep="yes")
+
+
+def test_a_damped_box_comes_to_rest_and_sleeps_under_the_default_scheme():
+    """The default scheme (implicit midpoint) adds no numerical damping: the contact law's
+    damping brings a dropped box to rest, and then it sleeps."""
+    from engine import DEFAULT_SCHEME
+
+    scene = Scene(sleep=True, contact_model=PaperSpring(damping=0.3))
+    assert scene.scheme == DEFAULT_SCHEME == "implicit-midpoint"
+    scene.add_plane(size=4.0, divisions=2)
+    scene.add_body(shapes.box(), position=(0.0, 0.0, 0.6))
+    slept = next((k for k in range(1500) if scene.step(1e-3).sleeping), None)
+    assert slept is not None and np.isfinite(scene.positions).all()
