@@ -18,15 +18,16 @@ venv: $(STAMP)
 serve: $(STAMP)    # the service on 127.0.0.1:8000, store under ./data (MRDEM_* to change)
 	$(PY) -m service
 
-test: $(STAMP)
-	$(PY) -m pytest -q -m "not slow"
+test: $(STAMP)      # the default run; --durations=15 lists the slowest tests
+	$(PY) -m pytest -q -m "not slow" --durations=15
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow
+	$(PY) -m pytest -q -m slow --durations=15
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/lint-imports    # the import contracts in pyproject.toml [tool.importlinter]
 
 bench: $(STAMP)
 	$(PY) -m pip install --quiet -e '.[dev,bench]'

@@ -1,10 +1,29 @@
-"""Fixtures shared by tests/service and tests/clients (see harness.py)."""
+"""Fixtures shared by tests/service and tests/clients (see harness.py), and the Hypothesis
+profiles: "ci" (derandomised: the same examples on every run, no deadline, the reproduction
+blob printed on failure) when the ``CI`` environment variable is set (``.ci/run`` sets it),
+"dev" (Hypothesis' defaults: new random examples each run, failures replayed from
+``.hypothesis/``) otherwise. ``pytest --hypothesis-profile=ci`` selects one by hand."""
 
 from __future__ import annotations
+
+import os
 
 import httpx
 import pytest
 from harness import ServiceProcess
+from hypothesis import settings
+
+settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True, database=None)
+settings.register_profile("dev")
+
+
+def in_ci(environ=os.environ) -> bool:
+    """Whether ``CI`` is set to anything but empty, ``0`` or ``false``."""
+    return environ.get("CI", "").strip().lower() not in ("", "0", "false")
+
+
+# Loaded here, before any test module builds its settings(...) objects on top of the profile.
+settings.load_profile("ci" if in_ci() else "dev")
 
 
 @pytest.fixture(scope="session")
