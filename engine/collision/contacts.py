@@ -3,39 +3,56 @@
 Every query runs in body A's frame (a pair-local frame): B's tree is moved by the
 relative pose ``pose_a⁻¹ ∘ pose_b``, so coordinates stay small wherever the bodies are.
 
-Multiresolution search (``hierarchy=True``) keeps a **front of node pairs**, starting
-at the two roots, and streams each level's front through one listed kernel call:
+Multiresolution search (``hierarchy=True``, ``traversal="pairs"``) keeps a **front of
+node pairs**, starting at the two roots, inside one Numba call
+(:func:`~engine.kernels.collision.traversal.query_kernel`), a level per round:
 
+* a node pair whose bounding spheres (:attr:`~engine.trees.views.TreeViews.spheres`) are
+  apart is pruned before any triangle comparison;
 * a pair with a surrogate is evaluated with the iterative kernel (exact if
-  ``kernel="exact"``); "no contact" prunes both subtrees, "contact" or "not
-  converged" unfolds the node with the larger ε (a leaf is never unfolded);
-* a leaf–leaf pair is evaluated with ``kernel`` (hybrid: exact for not-converged).
+  ``kernel="exact"``); "no contact" prunes both subtrees, "contact" or "not converged"
+  replaces it by its child pairs — every surrogate of the pair unfolds, a leaf stays
+  (the unfold rule, :mod:`engine.collision.query`);
+* the leaf–leaf pairs reached are evaluated together at the end with ``kernel``
+  (hybrid: exact for the not-converged).
+
+``traversal="sets"`` runs the paper's Algorithm 5 instead (every pair of two active node
+sets per round, driven from Python); ``hierarchy=False`` the flat search over all leaf
+pairs. All three find the same leaf pairs.
 
 Surrogate ε carries a small safety margin at query time (a few hundred ulp of the
 pair's scale) so that rounding can never prune a pair the flat search reports;
 leaf–leaf evaluations are bit-identical to the flat search's. Hence (Lemma 1) the
 finest-level contact pairs equal those of the flat search, pair for pair.
 
-Contacts: for a leaf pair with closest points p (on A), q (on B) at distance d, the
-point is on the segment p→q weighted by the ε's (midpoint for equal ε), the normal
-points from A to B ((q − p)/d, or A's face normal when d ≈ 0), and the overlap is
-ε_a + ε_b − d. Points of one body pair closer than the smaller ε are merged into
-their average (normals averaged and renormalised, overlaps averaged).
+Contacts (:func:`~engine.kernels.collision.contact_merge.contact_kernel`): for a leaf pair
+with closest points p (on A), q (on B) at distance d, the point is on the segment p→q
+weighted by the ε's (midpoint for equal ε), the normal points from A to B ((q − p)/d, or
+A's face normal when p and q coincide) and the overlap is ε_a + ε_b − d, clipped to
+[0, ε_a + ε_b]. The points of one body pair are then merged greedily, deepest first: a
+point within the smaller ε of a cluster's first point joins it, and each cluster becomes
+its average (normals averaged and renormalised, overlaps averaged).
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from engine.arguments import KERNELS, check_kernel, check_precision, kernel_constants
+from engine.arguments import check_kernel, check_precision
+from engine.collision.query import (  # TINY: batch.py imports it from here until it moves
+    TINY,  # noqa: F401
+    ULP,
+    check_posed_pair,
+    contact_constants,
+    query_parameters,
+    unfold_nodes,
+)
 from engine.errors import InvalidArgumentError
 from engine.geometry.distance import (
     DEFAULT_ITERATIONS,
     DEFAULT_PRECISION,
-    DEFAULT_RTOL,
     TriangleSet,
     triangle_contacts,
 )
@@ -48,9 +65,6 @@ from engine.kernels.geometry import triangle_batch as tb
 from engine.trees.tree import SurrogateTree
 
 __all__ = ["ContactSet", "ContactStats", "find_contacts"]
-
-ULP = {np.float32: float(np.finfo(np.float32).eps), np.float64: float(np.finfo(np.float64).eps)}
-TINY = 1e3 * float(np.finfo(np.float32).eps)  # relative gap below which p and q coincide
 
 
 @dataclass(frozen=True)
@@ -165,23 +179,10 @@ def find_contacts(
     return ContactSet(*result, stats)
 
 
-def check_posed_pair(tree_a, pose_a, tree_b, pose_b) -> None:
-    """Raise :class:`InvalidArgumentError` unless the trees are SurrogateTrees and the
-    poses Poses."""
-    for name, tree in (("tree_a", tree_a), ("tree_b", tree_b)):
-        if not isinstance(tree, SurrogateTree):
-            raise InvalidArgumentError(f"{name} must be a SurrogateTree")
-    for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
-        if not isinstance(pose, Pose):
-            raise InvalidArgumentError(f"{name} must be a Pose")
-
-
 def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:
     """The ``contact_kernel`` arguments after the found pairs and their face maps
     (``rotation_a``, ``position_a``: A's pose, writable arrays as the batch passes them)."""
-    ea, eb = tree_a.leaf_epsilon, tree_b.leaf_epsilon
-    tiny = TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
-    setup = (ea, eb, tiny, min(ea, eb), rotation_a, position_a)
+    setup = (*contact_constants(tree_a, tree_b), rotation_a, position_a)
     return (
         len(tree_b.views.geometry.face_nodes),
         kernel != "iterative",
@@ -203,6 +204,11 @@ def _moved(tree: SurrogateTree, pose, index: np.ndarray, dtype) -> tuple[np.ndar
 
 
 def _flat(tree_a, tree_b, pose, kernel, precision, iterations):
+    """The flat search: every leaf of A against every leaf of B (``pose = (rotation (3, 3),
+    shift (3,))`` float64, B's frame to A's). Returns ``(found, count, faces of A, faces of
+    B, counters)``: the leaf pairs found in the kernels' layout (:func:`_found`), indexed by
+    face; ``faces (F,) int32`` the identity maps; ``counters = ((pairs,), iterative,
+    fallbacks, 0)``."""
     leaves = tree_b.views.geometry.face_nodes
     coords, frames = _moved(tree_b, pose, leaves, np.dtype(precision).type)
     res = triangle_contacts(
@@ -227,7 +233,10 @@ def _flat(tree_a, tree_b, pose, kernel, precision, iterations):
 
 
 def _found(pairs: np.ndarray, res) -> tuple:
-    """The kernels' result layout from a :class:`TriangleContacts`-like result."""
+    """The kernels' result layout ``(i (n,) int64, j (n,) int64, distance (n,), point_a
+    (3, n), point_b (3, n), status (n,) int8)`` of ``pairs (n, 2)`` int64 from a
+    :class:`~engine.geometry.distance.TriangleContacts`-like result ``res`` (points
+    ``(n, 3)``, in the query dtype)."""
     return (
         np.ascontiguousarray(pairs[:, 0]),
         np.ascontiguousarray(pairs[:, 1]),
@@ -239,6 +248,11 @@ def _found(pairs: np.ndarray, res) -> tuple:
 
 
 def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision, iterations):
+    """The pair-front search in one :func:`~engine.kernels.collision.traversal.query_kernel`
+    call (``pose``, ``contact`` as :func:`find_contacts` makes them). Returns ``(result,
+    counters)``: ``result = (pairs (m, 2) int64, points (k, 3), normals (k, 3), overlaps
+    (k,))`` float64, world frame; ``counters = (pairs per level, iterative, fallbacks,
+    unfoldings, sphere pruned)``."""
     dtype = np.dtype(precision).type
     sa = tree_a.views.geometry.node_set(precision, False)
     master = tree_b.views.geometry.master
@@ -268,27 +282,10 @@ def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision, iterations):
     return result, counters
 
 
-@functools.lru_cache(maxsize=64)
-def query_parameters(
-    kernel: str, dtype, iterations: int = DEFAULT_ITERATIONS
-) -> tuple[tuple, tuple]:
-    """Kernel parameters ``(mode, iterations, rtol, one, band)`` for surrogate pairs
-    (iterative; exact when ``kernel="exact"``) and for leaf pairs (``kernel``); cached
-    (immutable scalars)."""
-    one, band = kernel_constants(dtype)
-    iterations, rtol = np.int64(iterations), dtype(DEFAULT_RTOL)
-    coarse_mode = tb.EXACT if kernel == "exact" else tb.ITERATIVE
-    return (coarse_mode, iterations, rtol, one, band), (
-        KERNELS[kernel],
-        iterations,
-        rtol,
-        one,
-        band,
-    )
-
-
 def _active_sets(tree_a, tree_b, pose, kernel, precision, iterations):
-    """Algorithm 5: compare all pairs of the active sets; unfold both nodes of a hit."""
+    """Algorithm 5: compare all pairs of the active sets; both nodes of a hit unfold
+    (:func:`_unfold_set`). Returns what :func:`_flat` returns, the faces as node → face
+    maps ``(N,) int32`` (−1 for surrogates) and one comparison count per round."""
     dtype = np.dtype(precision).type
     sa = tree_a.views.geometry.node_set(precision, False)
     sb = TriangleSet.prepared(*(x.T for x in _moved(tree_b, pose, np.arange(len(tree_b)), dtype)))
@@ -345,12 +342,11 @@ def _active_sets(tree_a, tree_b, pose, kernel, precision, iterations):
     return _found(pairs[keep], Stacked), len(keep), *faces, counters
 
 
-def _unfold_set(tree, nodes: np.ndarray) -> np.ndarray:
-    """Next active set: each leaf stays, each surrogate is replaced by its children."""
-    nodes = np.unique(nodes)
-    leaves = nodes[tree.face[nodes] >= 0]
-    inner = nodes[tree.face[nodes] < 0]
-    counts = tree.child_count[inner].astype(np.int64)
-    starts = np.repeat(tree.first_child[inner].astype(np.int64), counts)
-    children = starts + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    return np.unique(np.concatenate([leaves, children]))
+def _unfold_set(tree: SurrogateTree, nodes: np.ndarray) -> np.ndarray:
+    """Algorithm 5's next active set ``(m,)`` int64, sorted and unique, from the nodes of
+    the hit pairs ``nodes (k,)`` int64: each leaf stays, each surrogate is replaced by its
+    children — the traversal's unfold rule per node
+    (:func:`~engine.collision.query.unfold_nodes`). Algorithm 5 applies it to *sets*, not
+    pairs: the next round compares every pair of the two sets, so a child of one hit may
+    meet a child of another (more comparisons than the pair front, the same leaf pairs)."""
+    return np.unique(unfold_nodes(tree, np.unique(nodes)))

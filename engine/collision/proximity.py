@@ -1,7 +1,7 @@
 """Minimum distance between two posed triangle meshes: branch and bound over surrogate trees.
 
-The query runs in body A's frame, like :func:`engine.collision.contacts.find_contacts`: B's nodes
-are moved by the relative pose ``pose_a⁻¹ ∘ pose_b``.
+The query runs in body A's frame, like :func:`engine.collision.contacts.find_contacts`: B's
+nodes are moved by the relative pose ``pose_a⁻¹ ∘ pose_b``.
 
 **Bound.** A surrogate's ε is the largest distance from a covered vertex to the
 surrogate triangle *plus the leaf ε* (the body's halo, :mod:`engine.trees.tree`). Distance
@@ -15,7 +15,8 @@ a lower bound; the exact distance of any leaf pair is an upper bound on the mini
 
 **Search** (level-synchronous; each round is one batched call of the exact kernel,
 :func:`~engine.kernels.geometry.triangle_batch.paired_kernel` in ``EXACT`` mode as
-:func:`~engine.geometry.distance.triangle_distances` runs it, for the front, and one for probes):
+:func:`~engine.geometry.distance.triangle_distances` runs it, for the front, and one for
+probes):
 
 1. the front starts at the pair of roots;
 2. every front pair gets its exact distance in ``precision``; a leaf pair's is a
@@ -25,13 +26,18 @@ a lower bound; the exact distance of any leaf pair is an upper bound on the mini
    centroid is nearest the node triangle's centroid) is a candidate too, which gives
    a tight upper bound long before the front reaches the leaves;
 4. a surrogate pair survives if its lower bound, less a rounding margin (256 ulp of
-   the pair's scale, :func:`~engine.kernels.collision.batch.query_margin`), is at most the best
-   candidate; each survivor unfolds the node with the larger g (a leaf never), and a
+   the pair's scale, :func:`~engine.kernels.collision.batch.query_margin`), is at most the
+   best candidate; each survivor unfolds the node with the larger g (a leaf never), and a
    child pair enters the next front only if the bounding spheres of its covered
-   triangles (:func:`engine.collision.contacts.spheres` less the halo) pass the same test;
+   triangles (:attr:`~engine.trees.views.TreeViews.distance_bounds`: the tree's
+   :attr:`~engine.trees.views.TreeViews.spheres` less the halo) pass the same test;
 5. the search stops when the front is empty, or at once when a candidate has
    distance 0 (the meshes touch or intersect).
 
+This is not the contact traversal's unfold rule (every surrogate of a pair unfolds,
+:mod:`engine.collision.query`), on purpose: the contact search must reach every leaf
+pair in contact anyway, while a branch and bound wants each evaluated pair to tighten its
+lower bound most, and the larger of the two g is the larger slack in that bound.
 Unfolding one node per pair (rather than both when their g are close) and 64 probes
 gave the fewest evaluated pairs over icospheres of 1,280 and 5,120 faces at four gaps
 and interlocked tori (sweep of 16 / 64 / 256 probes, one or both nodes).
@@ -48,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine.arguments import check_precision, kernel_constants
-from engine.collision.contacts import ULP, check_posed_pair
+from engine.collision.query import ULP, check_posed_pair
 from engine.geometry.distance import DEFAULT_ITERATIONS, DEFAULT_RTOL
 from engine.geometry.pose import Pose
 from engine.kernels.collision.batch import query_margin, relative_pose
@@ -250,9 +256,14 @@ class _Search:
 
 
 def _unfold(na: np.ndarray, nb: np.ndarray, a: _Body, b: _Body) -> tuple[np.ndarray, np.ndarray]:
-    """Children pairs ``(m,)`` int64 of the node pairs (na, nb), none of them two leaves:
-    the node with the larger g is unfolded (a leaf, g = 0, only if the other is one too:
-    never)."""
+    """Child pairs ``(na, nb)``, both ``(m,)`` int64, of the node pairs ``na, nb (k,)`` int64,
+    none of them two leaves: the node with the larger g is unfolded (a leaf, g = 0, only
+    if the other is one too: never), the other stays.
+
+    The branch and bound's own rule, not the traversal's
+    (:func:`~engine.collision.query.unfold_pairs`, both surrogates unfold): splitting only
+    the node with the larger gap tightens the lower bound d(S_a, S_b) − g_a − g_b where it
+    is loosest, and evaluated the fewest pairs in the sweep of the module docstring."""
     split_a = ~a.leaf[na] & (b.leaf[nb] | (a.gap[na] >= b.gap[nb]))
     count = np.where(split_a, a.child_count[na], b.child_count[nb])
     owner = np.repeat(np.arange(len(na)), count)
