@@ -1,52 +1,27 @@
 """Request and response bodies: JSON, or msgpack with numpy arrays as typed binary.
 
-msgpack arrays travel as extension type :data:`NDARRAY_EXT` whose payload is the msgpack
-array ``[dtype, shape, data]``: a numpy dtype string (little-endian or byte-order-free
-bool, integer, unsigned or float, at most 8 bytes), the shape, and the raw row-major
-bytes. Nothing else is accepted, so decoding never executes code (no pickle). In JSON,
-arrays are nested lists and non-finite numbers (``NaN``, ``Infinity``) are rejected.
+msgpack arrays travel as extension type :data:`NDARRAY_EXT` holding ``[dtype, shape,
+data]``, read and written by :mod:`common.codec` (the one implementation, shared with the
+clients): little-endian or byte-order-free bool, integer, unsigned or float dtypes of at most
+8 bytes, nothing else, so decoding never executes code (no pickle). This module adds the HTTP
+parts: content negotiation, 400/406/413/415 problems, the body-size limit. In JSON, arrays
+are nested lists and non-finite numbers (``NaN``, ``Infinity``) are rejected.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 import msgpack
-import numpy as np
 from fastapi import Request
 from fastapi.responses import Response
+
+from common.codec import JSON, MSGPACK, NDARRAY_EXT, CodecError, packb, plain, unpackb
 
 from .errors import BadRequest, NotAcceptable, PayloadTooLarge, UnsupportedMediaType
 
 __all__ = ["JSON", "MSGPACK", "NDARRAY_EXT", "BodyLimit", "decode", "encode_msgpack", "respond"]
-
-JSON = "application/json"
-MSGPACK = "application/msgpack"
-NDARRAY_EXT = 1
-_KINDS = "biuf"
-
-
-def _ext_hook(code: int, payload: bytes):
-    if code != NDARRAY_EXT:
-        raise BadRequest(f"unknown msgpack extension type {code} (arrays use {NDARRAY_EXT})")
-    try:
-        dtype_name, shape, data = msgpack.unpackb(payload, raw=False)
-        dtype = np.dtype(dtype_name)
-        shape = tuple(int(n) for n in shape)
-    except (ValueError, TypeError, msgpack.UnpackException) as exc:
-        raise BadRequest(f"malformed msgpack array: {exc}") from None
-    if dtype.kind not in _KINDS or dtype.itemsize > 8 or dtype.byteorder == ">":
-        raise BadRequest(f"array dtype {dtype.str!r} not accepted (little-endian numbers only)")
-    if any(n < 0 for n in shape) or not isinstance(data, bytes):
-        raise BadRequest("malformed msgpack array: negative dimension or non-binary data")
-    if math.prod(shape) * dtype.itemsize != len(data):
-        raise BadRequest(
-            f"msgpack array of shape {list(shape)} and dtype {dtype.str} needs"
-            f" {math.prod(shape) * dtype.itemsize} bytes, got {len(data)}"
-        )
-    return np.frombuffer(data, dtype).reshape(shape).copy()
 
 
 def _no_constant(name: str):
@@ -65,9 +40,9 @@ def decode(body: bytes, content_type: str | None) -> Any:
             raise BadRequest(f"malformed JSON: {exc}") from None
     if media in (MSGPACK, "application/x-msgpack"):
         try:
-            return msgpack.unpackb(body, raw=False, ext_hook=_ext_hook, strict_map_key=True)
-        except BadRequest:
-            raise
+            return unpackb(body, strict=True)
+        except CodecError as exc:
+            raise BadRequest(str(exc)) from None
         except (ValueError, TypeError, msgpack.UnpackException, RecursionError) as exc:
             raise BadRequest(f"malformed msgpack: {exc}") from None
     raise UnsupportedMediaType(
@@ -75,28 +50,9 @@ def decode(body: bytes, content_type: str | None) -> Any:
     )
 
 
-def _msgpack_default(value):
-    if isinstance(value, np.ndarray):
-        array = np.ascontiguousarray(value)
-        if array.dtype.byteorder == ">":
-            array = array.astype(array.dtype.newbyteorder("<"))
-        payload = msgpack.packb([array.dtype.str, list(array.shape), array.tobytes()])
-        return msgpack.ExtType(NDARRAY_EXT, payload)
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"cannot encode {type(value).__name__}")
-
-
 def encode_msgpack(payload: Any) -> bytes:
-    return msgpack.packb(payload, default=_msgpack_default, use_bin_type=True)
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"cannot encode {type(value).__name__}")
+    """``payload`` as msgpack, arrays as typed binary (:func:`common.codec.packb`)."""
+    return packb(payload)
 
 
 def _wants(request: Request) -> str:
@@ -116,7 +72,7 @@ def respond(request: Request, payload: Any, status: int = 200, headers=None) -> 
     """``payload`` in the media type the request accepts (JSON unless it asks msgpack)."""
     if _wants(request) == MSGPACK:
         return Response(encode_msgpack(payload), status, headers, media_type=MSGPACK)
-    body = json.dumps(payload, default=_json_default, allow_nan=False, separators=(",", ":"))
+    body = json.dumps(payload, default=plain, allow_nan=False, separators=(",", ":"))
     return Response(body, status, headers, media_type=JSON)
 
 
