@@ -7,6 +7,7 @@ from functools import cached_property
 
 import numpy as np
 
+from common.rotation import rotation_matrix
 from engine.errors import InvalidArgumentError
 
 __all__ = ["Pose"]
@@ -47,15 +48,8 @@ class Pose:
 
     @cached_property
     def rotation(self) -> np.ndarray:
-        """(3, 3) float64 rotation matrix (read-only)."""
-        w, x, y, z = self.orientation
-        rot = np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-            ]
-        )
+        """(3, 3) float64 rotation matrix (read-only; :func:`common.rotation.rotation_matrix`)."""
+        rot = rotation_matrix(self.orientation)
         rot.flags.writeable = False
         return rot
 
