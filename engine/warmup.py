@@ -16,8 +16,8 @@ from engine.geometry.distance import TriangleSet, triangle_contacts, triangle_di
 from engine.geometry.pose import Pose
 from engine.geometry.shapes import box
 from engine.scene import SCHEMES, Scene
+from engine.trees.build import build_tree
 from engine.trees.surrogates import FITS
-from engine.trees.tree import build_tree
 
 __all__ = ["warmup"]
 

@@ -1,8 +1,9 @@
-"""Surrogate trees (paper §4, Appendix A–B): the surrogate fit, the tree build and its halos."""
+"""Surrogate trees (paper §4, Appendices A–B): surrogate fit, tree build, views, halos."""
 
-from engine.trees.halos import SceneTrees
+from engine.trees.build import build_tree
+from engine.trees.halos import SceneTrees, size_epsilon
 from engine.trees.surrogates import DEFAULT_FIT, FITS, FitParameters
-from engine.trees.tree import TREE_FORMAT, SurrogateTree, TreeStats, build_tree
+from engine.trees.tree import TREE_FORMAT, SurrogateTree, TreeStats
 
 __all__ = [
     "DEFAULT_FIT",
@@ -13,4 +14,5 @@ __all__ = [
     "SurrogateTree",
     "TreeStats",
     "build_tree",
+    "size_epsilon",
 ]

@@ -44,7 +44,8 @@ import numpy as np
 
 from engine.errors import InvalidArgumentError
 from engine.geometry.mesh import Mesh
-from engine.trees.tree import SurrogateTree, build_tree
+from engine.trees.build import build_tree
+from engine.trees.tree import SurrogateTree
 
 __all__ = [
     "AUTO",

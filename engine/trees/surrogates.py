@@ -3,7 +3,7 @@
 :func:`enclosing_triangle` gives the initial triangle of a group of covered triangles;
 :func:`fit_triangle` moves its three vertices to a local minimum of the functional
 below (L-BFGS, analytic gradient, Numba kernels in :mod:`engine.kernels.trees.surrogate_fit`).
-:func:`engine.trees.tree.build_tree` keeps the fitted triangle only if its exact conservative
+:func:`engine.trees.build.build_tree` keeps the fitted triangle only if its exact conservative
 ε-region (:func:`region_volume`) is not larger than the initial one's.
 
 The functional is evaluated in the group's normalised frame — covered vertices ``p_i``
@@ -124,7 +124,7 @@ FITS = MappingProxyType(
         ),
     }
 )
-"""Named surrogate constructions for :func:`engine.trees.tree.build_tree`: ``"initial"`` (no
+"""Named surrogate constructions for :func:`engine.trees.build.build_tree`: ``"initial"`` (no
 fit), ``"epsilon"`` (the default) and ``"paper"`` (the paper's literal direction)."""
 DEFAULT_FIT = "epsilon"
 

@@ -60,7 +60,12 @@ class DistanceBounds(NamedTuple):
 class TreeGeometry:
     """What depends on a tree's triangles only (shared by its ε-shifted copies).
 
-    ``triangles (N, 3, 3)``, ``face (N,)``, ``parent (N,)`` of the tree it was made for.
+    Parameters
+    ----------
+    triangles : (N, 3, 3) float64 — the nodes' triangles, body frame
+    face : (N,) int32 — original face of a leaf, −1 for a surrogate
+    parent : (N,) int32 — parent node, −1 for the root
+        (the read-only arrays of the tree it is made for)
     """
 
     def __init__(self, triangles: np.ndarray, face: np.ndarray, parent: np.ndarray) -> None:
@@ -88,11 +93,14 @@ class TreeGeometry:
 
     @cached_property
     def master(self) -> TriangleSet:
-        """Every node prepared in float64 (the source the searches move and round)."""
+        """Every node prepared in float64, body frame (``coords_rm (N, 9)``, ``frames_rm
+        (N, 14)``): the source the searches move and round."""
         return TriangleSet(self._triangles, "float64", "tree")
 
     def node_set(self, precision: str, leaves_only: bool) -> TriangleSet:
-        """Every node (or the leaves, in face order) prepared in ``precision``."""
+        """Every node (``N`` rows, node order) or, with ``leaves_only``, the leaves (``F``
+        rows, face order) prepared in ``precision`` ("float32" or "float64"), body frame:
+        :attr:`master`'s rows rounded. Computed once per key."""
         key = (precision, leaves_only)
         if key not in self._node_sets:
             index = self.face_nodes if leaves_only else np.arange(len(self._face))
@@ -101,7 +109,7 @@ class TreeGeometry:
 
     @cached_property
     def extent(self) -> float:
-        """Largest absolute coordinate of the nodes, body frame."""
+        """Largest absolute coordinate of the nodes (float), body frame."""
         return float(np.abs(self._triangles).max())
 
     @cached_property
@@ -143,7 +151,14 @@ class TreeGeometry:
 
 
 class TreeViews:
-    """Derived arrays of one tree: its shared :attr:`geometry` and what depends on ε."""
+    """Derived arrays of one tree: its shared :attr:`geometry` and what depends on ε.
+
+    Parameters
+    ----------
+    tree : SurrogateTree — the tree the views are of
+    geometry : TreeGeometry, optional — the triangle views to share (an ε-shifted copy
+        passes its source tree's); made for ``tree`` when None
+    """
 
     def __init__(self, tree, geometry: TreeGeometry | None = None) -> None:
         self._tree = tree

@@ -11,6 +11,7 @@ import pytest
 from engine import InvalidArgumentError, shapes
 from engine.geometry.reference import point_triangle_distance_naive
 from engine.kernels.trees.surrogate_fit import closest_weights
+from engine.trees.build import build_tree
 from engine.trees.surrogates import (
     FITS,
     FitParameters,
@@ -20,7 +21,6 @@ from engine.trees.surrogates import (
     largest_distance,
     region_volume,
 )
-from engine.trees.tree import build_tree
 
 ALL_TERMS = FitParameters(
     beta=8.0,

@@ -9,7 +9,8 @@ import pytest
 
 from engine import InvalidArgumentError, shapes
 from engine.geometry.reference import point_triangle_distance_naive
-from engine.trees.tree import TREE_FORMAT, SurrogateTree, build_tree
+from engine.trees.build import build_tree
+from engine.trees.tree import TREE_FORMAT, SurrogateTree
 
 MESHES = {
     "icosphere": lambda: shapes.icosphere(2),
