@@ -94,7 +94,7 @@ class MultiscaleSearch:
             front.veto.clear()
 
     def __call__(self, positions, orientations):
-        from engine.scene import SEARCH_COUNTERS, Contacts
+        from engine.collision.configuration import SEARCH_COUNTERS, Contacts
 
         scene = self.scene
         origins, pairs = scene.configuration(positions, orientations)
