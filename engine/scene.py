@@ -11,14 +11,23 @@ properties: exact for closed meshes, from the convex hull of open ones, or given
 (:mod:`engine.dynamics.inertia`), their source in ``mass_source (n,) str`` ("mesh", "convex_hull",
 "given", "fixed"); ε defaults: :mod:`engine.trees.halos`.
 
-Contacts of a configuration: bounding spheres of the trees' roots go through the broad
-phase (never a fixed–fixed pair); the candidate pairs go through the multiresolution
-search in one batched call (:class:`~engine.collision.batch.TreeBank`), or the flat search pair by
-pair. Time stepping lives in :mod:`engine.dynamics.picard`.
+Contacts of a configuration (:class:`~engine.collision.configuration.Contacts`): bounding
+spheres of the trees' roots go through the broad phase (never a fixed–fixed pair); the
+candidate pairs go through the multiresolution search in one batched call
+(:class:`~engine.collision.batch.TreeBank`), or the flat search pair by pair.
+
+The scene composes the layers below it, which never import it (they receive the scene as
+an argument): time stepping is :func:`engine.dynamics.picard.step`; with sleeping bodies
+:meth:`step` runs it inside :meth:`Sleep.frozen <engine.dynamics.sleep.Sleep.frozen>` and
+then updates the sleep state; the ``multiscale`` scheme's persistent fronts are a
+:class:`~engine.collision.multiscale.MultiscaleSearch`. The state the dynamics keep between
+steps is declared here: ``warm_start`` (:class:`~engine.dynamics.evaluation.WarmStart`) and
+``body_cache`` (:class:`~engine.dynamics.bodies.BodyCache`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -34,7 +43,12 @@ from engine.arguments import (
 )
 from engine.collision.batch import PairCache, TreeBank
 from engine.collision.broadphase import overlapping_pairs
+from engine.collision.configuration import SEARCH_COUNTERS, Contacts
 from engine.collision.contacts import find_contacts
+from engine.collision.multiscale import MultiscaleSearch
+from engine.dynamics import picard
+from engine.dynamics.bodies import BodyCache, body_terms
+from engine.dynamics.evaluation import WarmStart
 from engine.dynamics.forces import ContactModel, PaperSpring
 from engine.dynamics.inertia import body_mass, fixed_center
 from engine.dynamics.sleep import Sleep
@@ -55,16 +69,6 @@ DEFAULT_SCHEME = "implicit-midpoint"
 """The scheme on every measured run-time-against-error front (``benchmarks/accuracy.py``,
 BENCHMARKS.md): at dt = 1e-3 on the resting box stack, where explicit diverges from 2e-3,
 and on the two-body collisions, where backward Euler's dissipation put it off the front."""
-SEARCH_COUNTERS = (
-    "comparisons",
-    "iterative",
-    "fallbacks",
-    "sphere_pruned",
-    "unfoldings",
-    "folds",
-    "listed",
-)
-"""The search counters summed over a configuration's body pairs (:class:`Contacts`)."""
 
 
 @dataclass(frozen=True)
@@ -84,25 +88,6 @@ class SceneState:
     angular_velocities: np.ndarray
     masses: np.ndarray
     time: float
-
-
-@dataclass(frozen=True)
-class Contacts:
-    """Contacts of one configuration, as the force kernel takes them.
-
-    bodies : (k, 2) int64 body pairs (a < b) tested in the narrow phase
-    offsets : (k + 1,) int64 — pair q owns rows ``offsets[q]:offsets[q + 1]``
-    points, normals : (c, 3); overlaps : (c,)
-    counters : dict of summed search counters (comparisons, iterative, fallbacks,
-        sphere_pruned, unfoldings, triangle_pairs)
-    """
-
-    bodies: np.ndarray
-    offsets: np.ndarray
-    points: np.ndarray
-    normals: np.ndarray
-    overlaps: np.ndarray
-    counters: dict
 
 
 class Scene:
@@ -130,6 +115,15 @@ class Scene:
         ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
         by less than that skin (:class:`~engine.collision.batch.PairCache`: exactly the same
         contacts); 0 searches every configuration from the roots
+
+    Attributes besides the state arrays
+    -----------------------------------
+    pair_cache : PairCache — the multiresolution search's per-pair leaf lists
+    warm_start : WarmStart or None — the last converged Picard step's final evaluation,
+        reused by the next step (:mod:`engine.dynamics.evaluation`); cleared when bodies
+        are added and by steps that end elsewhere
+    body_cache : BodyCache — per-body terms of the dynamics (:mod:`engine.dynamics.bodies`)
+    sleep : Sleep or None
     """
 
     def __init__(
@@ -176,9 +170,13 @@ class Scene:
         self.time = 0.0
         self._trees = SceneTrees()  # each mesh built once, shifted per ε (engine.trees.halos)
         self._bank: TreeBank | None = None
-        self._multiscale = None
+        self._multiscale: MultiscaleSearch | None = None
         self.pair_cache = PairCache(skin)
-        self._evaluation = None  # the last converged Picard step's final forces
+        self.warm_start: WarmStart | None = None  # the last converged step's final forces
+        self.body_cache = BodyCache()
+        # (tree_index they were made for, array): kept while the bodies are the same
+        self._root_spheres: tuple[np.ndarray, np.ndarray] | None = None
+        self._epsilon: tuple[np.ndarray, np.ndarray] | None = None
         n = 0
         self.positions = np.zeros((n, 3))
         self.orientations = np.zeros((n, 4))
@@ -302,7 +300,7 @@ class Scene:
         slot = self._trees.place(body, epsilon, base, mesh, fixed, np.arange(first, first + k))
         self._wake()
         self.pair_cache.clear()  # its keys number the pairs by the body count
-        self._evaluation = None
+        self.warm_start = None
         self.positions = np.concatenate([self.positions, positions])
         self.orientations = np.concatenate([self.orientations, orientations])
         self.velocities = np.concatenate([self.velocities, velocities])
@@ -400,15 +398,18 @@ class Scene:
     # ------------------------------------------------------------------ stepping
     def step(self, dt: float, scheme: str | None = None):
         """Advance by ``dt`` with ``scheme`` (default: the scene's); returns the step's
-        :class:`~engine.dynamics.picard.StepStats`."""
-        from engine.dynamics.picard import step
-
+        :class:`~engine.dynamics.picard.StepStats`. With sleeping bodies: the step runs
+        with them frozen, then the sleep state is updated (:mod:`engine.dynamics.sleep`)."""
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0):
             raise InvalidArgumentError(f"dt must be finite and > 0, got {dt}")
-        if self.sleep is not None:
-            return self.sleep.step(self, dt, _scheme(scheme or self.scheme))
-        return step(self, dt, _scheme(scheme or self.scheme))
+        scheme = _scheme(scheme or self.scheme)
+        if self.sleep is None:
+            return picard.step(self, dt, scheme)
+        with self.sleep.frozen(self):
+            stats = picard.step(self, dt, scheme)
+        self.sleep.update(self, body_terms(self).radius)
+        return dataclasses.replace(stats, sleeping=self.sleep.sleeping)
 
     def kinetic_energy(self) -> float:
         """Translational plus rotational kinetic energy of the free bodies."""
@@ -452,7 +453,7 @@ class Scene:
     def _roots(self) -> np.ndarray:
         """(n, 4) root bounding sphere (body frame) of each body, kept while the bodies
         are the same (adding bodies replaces ``tree_index``)."""
-        cached = self.__dict__.get("_root_spheres")
+        cached = self._root_spheres
         if cached is None or cached[0] is not self.tree_index:
             roots = np.array([t.views.spheres[0] for t in self.trees])[self.tree_index]
             cached = self._root_spheres = (self.tree_index, roots)
@@ -525,12 +526,10 @@ class Scene:
         )
 
     @property
-    def multiscale(self):
+    def multiscale(self) -> MultiscaleSearch:
         """The :class:`~engine.collision.multiscale.MultiscaleSearch` whose fronts persist across
         this scene's steps."""
         if self._multiscale is None:
-            from engine.collision.multiscale import MultiscaleSearch
-
             self._multiscale = MultiscaleSearch(self)
         return self._multiscale
 
@@ -549,7 +548,7 @@ class Scene:
     def epsilon(self) -> np.ndarray:
         """(n,) ε of each body (its tree's leaf ε; a copy of the array kept while the bodies
         are the same)."""
-        cached = self.__dict__.get("_epsilon")
+        cached = self._epsilon
         if cached is None or cached[0] is not self.tree_index:
             epsilon = np.array([t.leaf_epsilon for t in self.trees])[self.tree_index]
             cached = self._epsilon = (self.tree_index, epsilon)

@@ -31,11 +31,20 @@ does not converge within ``max_picard_iterations`` says so in its :class:`StepSt
 with ``max_halvings > 0`` it is redone as two half steps.
 
 Warm start across steps: a converged step ends in the configuration it evaluated last,
-so the next step's first iteration reuses that evaluation (``StepStats.evaluations``
+so the next step's first iteration reuses that evaluation, kept in the scene's declared
+``warm_start`` (:class:`~engine.dynamics.evaluation.WarmStart`; ``StepStats.evaluations``
 counts the searches actually run). (A linear extrapolation of the first applied forces
 from the last two steps was tried and dropped: more evaluations on the grid, 39 against 32
 over ten steps, and a resting sphere crept at 3e-3 m/s — the accepted solution, anywhere
 within the tolerance, was biased the same way every step.)
+
+Where things live: :func:`step` takes the scene as an argument (this module never imports
+:mod:`engine.scene`, which composes it); the forces of one configuration come from
+:func:`~engine.dynamics.evaluation.evaluate` as an
+:class:`~engine.dynamics.evaluation.Evaluation` — normal and friction forces and torques as
+:class:`~engine.dynamics.evaluation.Wrench` records — and the per-body terms (constant
+forces, levers, inverse masses) from :func:`~engine.dynamics.bodies.body_terms`. Sleeping
+bodies are frozen around a step by the scene (:mod:`engine.dynamics.sleep`), not here.
 """
 
 from __future__ import annotations
@@ -48,6 +57,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from engine.collision.configuration import SEARCH_COUNTERS
+from engine.dynamics.bodies import body_terms, smallest_inertia
+from engine.dynamics.evaluation import WarmStart, Wrench, cross, evaluate, evaluation_key, reused
 from engine.kernels.dynamics import contact_forces as kf
 from engine.kernels.dynamics import motion as kd
 
@@ -58,6 +70,8 @@ BETA_MIN = 0.01
 _ATOL = 1e-9
 SWITCH_AFTER = 8
 """Picard iterations after which a step may settle on a contact-set switch (:func:`_switch`)."""
+NORMAL, FRICTION = 0, 1
+"""The two parts of the contact forces a Picard iteration relaxes, each with its weight."""
 
 
 @dataclass(frozen=True)
@@ -121,7 +135,7 @@ def travel(scene, dt: float) -> tuple[float, int]:
     free = np.flatnonzero(~scene.fixed)
     if not len(free):
         return 0.0, -1
-    radius = _bodies(scene).radius[free]
+    radius = body_terms(scene).radius[free]
     speed = np.linalg.norm(scene.velocities[free], axis=1) + radius * np.linalg.norm(
         scene.angular_velocities[free], axis=1
     )
@@ -156,7 +170,7 @@ def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> Ste
     state = _state(scene)
     if scheme == "explicit":
         stats = _explicit(scene, dt)
-        scene._evaluation = None
+        scene.warm_start = None
     elif scheme == "multiscale":
         search = scene.multiscale
         search.begin_step()
@@ -197,50 +211,52 @@ class _Search:
 def _explicit(scene, dt: float) -> dict:
     x, q, v, w = _state(scene)
     search = _Search(scene, hierarchy=True)
-    normal, friction, _, contacts, energy, _ = _forces(scene, (x, q, v, w), x, search)
+    evaluation = evaluate(scene, (x, q, v, w), x, search)
     out = tuple(np.empty_like(a) for a in (x, q, v, w))
-    force, torque = normal[0] + friction[0], normal[1] + friction[1]
-    _advance(scene, (x, q, v, w), force, torque, dt, out)
+    total = evaluation.normal.plus(evaluation.friction)
+    _advance(scene, (x, q, v, w), total.force, total.torque, dt, out)
     _restore(scene, out)
-    return {**_summary(scene, contacts, [contacts.counters], energy, True, 1), "evaluations": 1}
+    contacts = evaluation.contacts
+    summary = _summary(scene, contacts, [contacts.counters], evaluation.energy, True, 1)
+    return {**summary, "evaluations": 1}
 
 
 def _picard(scene, dt: float, search) -> dict:
     start = _state(scene)
     guess = tuple(a.copy() for a in start)
-    radius = _bodies(scene).radius
-    applied, residual, beta = None, [None, None], [1.0, 1.0]
+    radius = body_terms(scene).radius
+    # per part (NORMAL, FRICTION): applied wrench, last residual, relaxation weight
+    applied: list[Wrench] | None = None
+    residual, beta = [None, None], [1.0, 1.0]
     counters, converged, iterations, evaluations = [], False, 0, 0
-    key = _evaluation_key(scene, search)
+    key = evaluation_key(scene, search)
     forceless = True  # no evaluation of this step has had a contact force so far
-    recent: list[tuple[np.ndarray, np.ndarray]] = []  # the last computed totals
+    recent: list[Wrench] = []  # the last computed totals
     while iterations < scene.max_picard_iterations:
         iterations += 1
-        reused = _reused(scene, key, start) if iterations == 1 else None
-        if reused is None:
-            evaluation = _forces(scene, guess, start[0], search)
+        warm = reused(scene, key, start) if iterations == 1 else None
+        if warm is None:
+            evaluation = evaluate(scene, guess, start[0], search)
             evaluations += 1
         else:
-            evaluation = reused
-        normal, friction, stiffness, contacts, energy, changed = evaluation
+            evaluation = warm
+        stiffness, changed = evaluation.stiffness, evaluation.changed
         forceless = forceless and not stiffness.any()
-        computed = (normal, friction)
-        counters.append(contacts.counters if reused is None else _no_search(contacts.counters))
+        computed = (evaluation.normal, evaluation.friction)  # indexed by NORMAL, FRICTION
+        found = evaluation.contacts.counters
+        counters.append(found if warm is None else _no_search(found))
         if applied is None:  # the forces of the step's start, then the first relaxation
-            applied = [(f.copy(), t.copy()) for f, t in computed]
+            applied = [Wrench(c.force.copy(), c.torque.copy()) for c in computed]
             beta = _first_weights(scene, stiffness, radius, dt)
         else:
-            total = (normal[0] + friction[0], normal[1] + friction[1])
-            change = [(c[0] - a[0], c[1] - a[1]) for c, a in zip(computed, applied, strict=True)]
-            mismatch = (change[0][0] + change[1][0], change[0][1] + change[1][1])
+            total = evaluation.normal.plus(evaluation.friction)
+            change = [c.minus(a) for c, a in zip(computed, applied, strict=True)]
+            mismatch = change[NORMAL].plus(change[FRICTION])
             # body forces alone, every time: the applied forces are the computed ones exactly
             settled = forceless or _settled(scene, total, mismatch, stiffness[:, 2], radius)
             recent = [] if changed else [*recent[-5:], total]
             if not settled and iterations > SWITCH_AFTER:
-                applied_total = (
-                    applied[0][0] + applied[1][0],
-                    applied[0][1] + applied[1][1],
-                )
+                applied_total = applied[NORMAL].plus(applied[FRICTION])
                 settled = _switch(scene, recent, applied_total, stiffness[:, 2], radius)
             converged = settled and not changed  # multiscale: nothing unfolded either
             if converged:
@@ -248,76 +264,28 @@ def _picard(scene, dt: float, search) -> dict:
             if changed:  # a front moved: the secant history no longer describes the map
                 residual = [None, None]
                 beta = _first_weights(scene, stiffness, radius, dt)
-            for part in range(2):  # normal and friction forces, each with its own weight
-                new = np.concatenate(
-                    [change[part][0].ravel(), (change[part][1] / radius[:, None]).ravel()]
-                )
+            for part in (NORMAL, FRICTION):  # each with its own weight
+                new = _flat(change[part], radius)
                 beta[part] = _aitken(beta[part], residual[part], new)
                 residual[part] = new
-                applied[part] = tuple(
-                    a + beta[part] * c for a, c in zip(applied[part], change[part], strict=True)
+                applied[part] = Wrench(
+                    applied[part].force + beta[part] * change[part].force,
+                    applied[part].torque + beta[part] * change[part].torque,
                 )
-        force = applied[0][0] + applied[1][0]
-        torque = applied[0][1] + applied[1][1]
-        _advance(scene, start, force, torque, dt, guess)
+        total_applied = applied[NORMAL].plus(applied[FRICTION])
+        _advance(scene, start, total_applied.force, total_applied.torque, dt, guess)
     _restore(scene, guess)
     # the forces of the accepted configuration are the next step's first evaluation
-    scene._evaluation = (key, guess, start[0], evaluation) if converged else None
+    scene.warm_start = WarmStart(key, guess, start[0], evaluation) if converged else None
+    contacts, energy = evaluation.contacts, evaluation.energy
     summary = _summary(scene, contacts, counters, energy, converged, iterations)
     return {**summary, "evaluations": evaluations}
 
 
-def _evaluation_key(scene, search) -> tuple:
-    """What, besides the state, an evaluation's forces depend on."""
-    return (
-        type(search).__name__,
-        getattr(search, "hierarchy", None),
-        len(scene),
-        scene.kernel,
-        scene.precision,
-        scene.contact_model.parameters(),
-        scene.gravity.tobytes(),
-        scene.external_forces.tobytes(),
-        scene.fixed.tobytes(),
-        scene.masses.tobytes(),
-    )
-
-
-def _reused(scene, key, start):
-    """The last converged step's final evaluation if it was made of exactly this state
-    (same positions, orientations, velocities, spins and everything else the forces
-    depend on), with its torques moved to this step's lever origins; else None.
-
-    A converged Picard step ends in the configuration whose forces it evaluated last, so
-    the next step's first iteration — the forces of its start — is that evaluation: it
-    is reused instead of searched again. Only the lever origins of the torques differ
-    (the start of the step): τ' = τ + (o_old − o_new) × F for each body's contact force F.
-    """
-    cached = getattr(scene, "_evaluation", None)
-    if cached is None:
-        return None
-    cached_key, state, origins, evaluation = cached
-    if cached_key != key or not all(
-        np.array_equal(a, b) for a, b in zip(state, start, strict=True)
-    ):
-        return None
-    normal, friction, stiffness, contacts, energy, _ = evaluation
-    if stiffness.any():  # else no contact force: the torques have no lever to move
-        normal, friction = _moved_levers(scene, (normal, friction), origins, start[0])
-    return normal, friction, stiffness, contacts, energy, False
-
-
-def _moved_levers(scene, forces, old, new):
-    """``(normal, friction)`` force and torque pairs with the torques of the contact
-    forces taken about ``new (n, 3)`` instead of ``old`` lever origins."""
-    (normal, normal_torque), (friction, friction_torque) = forces
-    bodies = _bodies(scene)
-    lever = old - new
-    normal_torque = normal_torque + _cross(lever, normal - bodies.force)
-    friction_torque = friction_torque + _cross(lever, friction)
-    normal_torque[bodies.fixed] = 0.0
-    friction_torque[bodies.fixed] = 0.0
-    return (normal, normal_torque), (friction, friction_torque)
+def _flat(wrench: Wrench, radius: np.ndarray) -> np.ndarray:
+    """(6n,) float64: the forces and the torques over the lever ``radius (n,)``, one
+    vector (torques made force-like)."""
+    return np.concatenate([wrench.force.ravel(), (wrench.torque / radius[:, None]).ravel()])
 
 
 def _no_search(counters: dict) -> dict:
@@ -345,118 +313,11 @@ def _first_weights(scene, stiffness, radius, dt: float) -> list[float]:
     free = ~scene.fixed
     if not free.any() or not stiffness.any():  # no body, or no contact: no gain
         return [1.0, 1.0]
-    smallest = _smallest_inertia(scene)[free]
+    smallest = smallest_inertia(scene)[free]
     mobility = 1.0 / scene.masses[free] + radius[free] ** 2 / smallest
     gain_n = float((dt * dt * stiffness[free, 0] * mobility).max())
     gain_t = float((dt * stiffness[free, 1] * mobility).max())
     return [1.0 / (1.0 + gain_n), 1.0 / (1.0 + gain_t)]
-
-
-def _smallest_inertia(scene) -> np.ndarray:
-    """(n,) smallest principal moment of each free body (NaN for fixed ones), kept while
-    ``scene.inertia`` and ``scene.fixed`` are the same arrays (adding bodies replaces them)."""
-    cached = getattr(scene, "_smallest_inertia", None)
-    if cached is None or cached[0] is not scene.inertia or cached[1] is not scene.fixed:
-        free = ~scene.fixed
-        smallest = np.full(len(free), np.nan)
-        if free.any():
-            smallest[free] = np.linalg.eigvalsh(scene.inertia[free])[:, 0]
-        cached = (scene.inertia, scene.fixed, smallest)
-        scene._smallest_inertia = cached
-    return cached[2]
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a × b of ``(n, 3)`` arrays (np.cross costs ~20 µs of checks per call)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
-
-
-@dataclasses.dataclass(frozen=True)
-class _Bodies:
-    """Per-body terms that stay the same from one search to the next.
-
-    free : (n,) bool; fixed : (k,) int64 rows of the fixed bodies
-    force : (n, 3) float64 — weight plus external force (0 on fixed bodies)
-    size : (n,) float64 — m·|g| + |external force|
-    weight : float — the largest weight of a free body
-    radius : (n,) float64 — bounding radius of each body's mesh (a lever that makes
-        torques force-like)
-    inverse_mass : (n,) float64 — 0 for fixed bodies
-    """
-
-    free: np.ndarray
-    fixed: np.ndarray
-    force: np.ndarray
-    size: np.ndarray
-    weight: float
-    radius: np.ndarray
-    inverse_mass: np.ndarray
-
-
-def _bodies(scene) -> _Bodies:
-    """The scene's :class:`_Bodies`, rebuilt when the bodies, their masses or fixed flags,
-    gravity or the external forces change (arrays replaced, or edited in place)."""
-    arrays = (scene.masses, scene.fixed, scene.tree_index)
-    values = tuple(
-        a.tobytes() for a in (scene.masses, scene.fixed, scene.gravity, scene.external_forces)
-    )
-    cached = scene.__dict__.get("_body_terms")
-    if (
-        cached is not None
-        and all(a is b for a, b in zip(cached[0], arrays, strict=True))
-        and cached[1] == values
-    ):
-        return cached[2]
-    free = ~scene.fixed
-    force = np.zeros((len(free), 3))
-    force[free] = scene.masses[free, None] * scene.gravity + scene.external_forces[free]
-    size = np.zeros(len(free))
-    size[free] = scene.masses[free] * np.linalg.norm(scene.gravity) + np.linalg.norm(
-        scene.external_forces[free], axis=1
-    )
-    radius = np.array([max(t.bounding_radius, 1e-12) for t in scene.trees])[scene.tree_index]
-    weight = float((scene.masses[free] * np.linalg.norm(scene.gravity)).max(initial=0.0))
-    inverse_mass = np.where(scene.fixed, 0.0, 1.0 / scene.masses)
-    terms = _Bodies(free, np.flatnonzero(scene.fixed), force, size, weight, radius, inverse_mass)
-    scene._body_terms = (arrays, values, terms)
-    return terms
-
-
-def _forces(scene, configuration, origins, search):
-    """Normal (with gravity and external) and friction forces and torques ``(n, 3)`` of a
-    configuration, the per-body contact stiffness sums, the leaf contacts, the elastic
-    energy and whether the search's fronts changed. Surrogate contacts (multiscale) add
-    normal forces only."""
-    x, q, v, w = configuration
-    contacts, surrogate, changed = search(x, q)
-    bodies = _bodies(scene)
-    force = bodies.force.copy()
-    torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
-    stiffness = np.zeros((len(x), 3))
-    out = (force, torque, friction_force, friction_torque, stiffness)
-    law = scene.contact_model.parameters()
-    energy = 0.0
-    for found, parameters in ((contacts, law), (surrogate, (*law[:3], 0.0, law[4]))):
-        if found is not None and len(found.points):
-            energy += kf.contact_forces(
-                found.bodies,
-                found.offsets,
-                found.points,
-                found.normals,
-                found.overlaps,
-                (x, v, w, origins),
-                (scene.masses, scene.epsilon),
-                parameters,
-                out,
-            )
-    if len(bodies.fixed):
-        for array in (force, torque, friction_force, friction_torque):
-            array[bodies.fixed] = 0.0
-    return (force, torque), (friction_force, friction_torque), stiffness, contacts, energy, changed
 
 
 def _settled(scene, computed, mismatch, gross, radius) -> bool:
@@ -465,11 +326,11 @@ def _settled(scene, computed, mismatch, gross, radius) -> bool:
     the larger of its net force and the sum of its contact forces' magnitudes ``gross
     (n,)`` plus its weight (a body squeezed between equal and opposite contacts has a
     near-zero net force; relative to it, no iteration would ever settle) — and torques by
-    at most that times the lever ``radius``."""
-    bodies = _bodies(scene)
+    at most that times the lever ``radius``. ``computed``, ``mismatch`` : Wrench."""
+    bodies = body_terms(scene)
     return kf.settled(
-        computed,
-        mismatch,
+        (computed.force, computed.torque),
+        (mismatch.force, mismatch.torque),
         gross,
         bodies.size,
         radius,
@@ -481,11 +342,12 @@ def _settled(scene, computed, mismatch, gross, radius) -> bool:
 
 
 def _switch(scene, recent, applied, gross, radius) -> bool:
-    """Settled on a switch of the contact set: the last computed totals ``recent`` (force,
-    torque pairs, up to six) take two values A and B in turn — each at least twice, within
-    the Picard tolerance, and the sequence goes from one to the other and back (a single
-    change from A to B is a transition, not a cycle) — and the applied totals lie within
-    the tolerance of the segment from A to B (one weight for the whole scene).
+    """Settled on a switch of the contact set: the last computed totals ``recent``
+    (:class:`~engine.dynamics.evaluation.Wrench` or (force, torque) pairs, up to six) take
+    two values A and B in turn — each at least twice, within the Picard tolerance, and the
+    sequence goes from one to the other and back (a single change from A to B is a
+    transition, not a cycle) — and the applied totals ``applied`` lie within the tolerance
+    of the segment from A to B (one weight for the whole scene).
 
     The merged contact forces jump where a contact point joins or leaves a cluster (the
     merge radius is a threshold), and a step that ends at such a configuration has no
@@ -495,28 +357,31 @@ def _switch(scene, recent, applied, gross, radius) -> bool:
     that the iteration converges to, as for any discontinuous right-hand side (Filippov)."""
     if len(recent) < 4:
         return False
+    recent, applied = [Wrench(*r) for r in recent], Wrench(*applied)
     last = recent[-1]
-    same = [_settled(scene, last, (r[0] - last[0], r[1] - last[1]), gross, radius) for r in recent]
+    same = [_settled(scene, last, r.minus(last), gross, radius) for r in recent]
     side_a = [r for r, s in zip(recent, same, strict=True) if s]
     side_b = [r for r, s in zip(recent, same, strict=True) if not s]
     changes = sum(x != y for x, y in zip(same[:-1], same[1:], strict=True))
     if len(side_a) < 2 or len(side_b) < 2 or changes < 2:
         return False
     first_b = side_b[0]
-    if not all(
-        _settled(scene, first_b, (r[0] - first_b[0], r[1] - first_b[1]), gross, radius)
-        for r in side_b
-    ):
+    if not all(_settled(scene, first_b, r.minus(first_b), gross, radius) for r in side_b):
         return False
-    a = [np.mean([r[k] for r in side_a], axis=0) for k in range(2)]
-    b = [np.mean([r[k] for r in side_b], axis=0) for k in range(2)]
-    span = np.concatenate([(b[0] - a[0]).ravel(), ((b[1] - a[1]) / radius[:, None]).ravel()])
-    offset = np.concatenate(
-        [(applied[0] - a[0]).ravel(), ((applied[1] - a[1]) / radius[:, None]).ravel()]
-    )
+    a, b = _mean(side_a), _mean(side_b)
+    step_ab = b.minus(a)
+    span, offset = _flat(step_ab, radius), _flat(applied.minus(a), radius)
     t = float(np.clip(offset @ span / (span @ span), 0.0, 1.0)) if span @ span > 0 else 0.0
-    point = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]))
-    return _settled(scene, applied, (applied[0] - point[0], applied[1] - point[1]), gross, radius)
+    point = Wrench(a.force + t * step_ab.force, a.torque + t * step_ab.torque)
+    return _settled(scene, applied, applied.minus(point), gross, radius)
+
+
+def _mean(wrenches: list[Wrench]) -> Wrench:
+    """The mean force and the mean torque of ``wrenches``."""
+    return Wrench(
+        np.mean([w.force for w in wrenches], axis=0),
+        np.mean([w.torque for w in wrenches], axis=0),
+    )
 
 
 def _extrapolate(scene, start, dt: float) -> None:
@@ -529,7 +394,7 @@ def _extrapolate(scene, start, dt: float) -> None:
     (of the midpoint) is no longer the configuration's."""
     x0, q0, v0, w0 = start
     free = np.flatnonzero(~scene.fixed)
-    scene._evaluation = None
+    scene.warm_start = None
     if not len(free):
         return
     x1, q1, v1, w1 = (a[free] for a in _state(scene))
@@ -543,8 +408,10 @@ def _extrapolate(scene, start, dt: float) -> None:
     q2 /= np.linalg.norm(q2, axis=1)[:, None]
     kd.rotation_matrices(q2, rot)
     world = np.einsum("bij,bjk,bkl->bil", rot, inertia, rot.transpose(0, 2, 1))
-    contact = scene.masses[free, None] * (v1 - v0[free]) * (2.0 / dt) - _bodies(scene).force[free]
-    momentum2 = 2.0 * momentum1 - momentum0 + dt * _cross(x0[free] - x1, contact)
+    contact = (
+        scene.masses[free, None] * (v1 - v0[free]) * (2.0 / dt) - body_terms(scene).force[free]
+    )
+    momentum2 = 2.0 * momentum1 - momentum0 + dt * cross(x0[free] - x1, contact)
     spin = np.linalg.solve(world, momentum2[..., None])[..., 0]
     x, q, v, w = (a.copy() for a in _state(scene))
     x[free], q[free], v[free], w[free] = 2.0 * x1 - x0[free], q2, 2.0 * v1 - v0[free], spin
@@ -567,7 +434,7 @@ def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _advance(scene, start, force, torque, dt: float, out) -> None:
-    inverse_mass = _bodies(scene).inverse_mass
+    inverse_mass = body_terms(scene).inverse_mass
     kd.advance(start, force, torque, inverse_mass, scene.inertia, scene.inverse_inertia, dt, out)
 
 
@@ -594,8 +461,6 @@ def _summary(scene, contacts, counters, energy, converged: bool, iterations: int
 def _combined(parts: list[StepStats], dt: float, seconds: float) -> StepStats:
     """One step's statistics from consecutive parts of it (halves or sub-steps): counters
     summed, the state of the last part, the worst overlap."""
-    from engine.scene import SEARCH_COUNTERS
-
     summed = ("picard_iterations", "evaluations", *SEARCH_COUNTERS, "halvings")
     last = parts[-1]
     return dataclasses.replace(

@@ -11,11 +11,17 @@ from outside (``set_state``, external forces, new bodies) wakes every body.
 
 Sleeping is an approximation (a sleeping body feels no gravity and no contact forces), off
 by default: ``Scene(sleep=True)`` or ``Scene(sleep=Sleep(speed=…, steps=…))``.
+
+A :class:`Sleep` does not step the scene: ``Scene.step`` runs the time step
+(:func:`engine.dynamics.picard.step`) inside :meth:`Sleep.frozen` and then calls
+:meth:`Sleep.update` with the bodies' bounding radii
+(:attr:`engine.dynamics.bodies.BodyTerms.radius`).
 """
 
 from __future__ import annotations
 
-import dataclasses
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -31,6 +37,11 @@ class Sleep:
     ----------
     speed : float — surface speed below which a body counts as at rest (> 0)
     steps : int — consecutive steps at rest before it sleeps (>= 1)
+
+    Attributes
+    ----------
+    asleep : (n,) bool — the bodies asleep
+    rest : (n,) int64 — consecutive steps each body has been at rest
     """
 
     def __init__(self, speed: float = 1e-3, steps: int = 50) -> None:
@@ -42,35 +53,44 @@ class Sleep:
         self.wake_all(0)
 
     def wake_all(self, n: int) -> None:
+        """Every one of ``n`` bodies awake, none at rest."""
         self.asleep = np.zeros(n, bool)
         self.rest = np.zeros(n, np.int64)
 
-    def step(self, scene, dt: float, scheme: str):
-        """One step of ``scene`` with its sleeping bodies frozen; then the sleep update."""
-        from engine.dynamics.picard import step
+    @property
+    def sleeping(self) -> int:
+        """How many bodies are asleep."""
+        return int(self.asleep.sum())
 
+    @contextmanager
+    def frozen(self, scene) -> Iterator[None]:
+        """Within the block, ``scene``'s sleeping free bodies are fixed (``scene.fixed``
+        replaced by one with them set) and at rest (their velocities and angular
+        velocities zeroed); on leaving it, even by an exception, ``scene.fixed`` is the
+        array it was. A scene of a different body count wakes every body first."""
         if len(self.asleep) != len(scene):
             self.wake_all(len(scene))
         frozen = self.asleep & ~scene.fixed
-        if frozen.any():
-            fixed = scene.fixed
-            scene.fixed = fixed | frozen
-            scene.velocities[frozen] = 0.0
-            scene.angular_velocities[frozen] = 0.0
-            try:
-                stats = step(scene, dt, scheme)
-            finally:
-                scene.fixed = fixed
-        else:
-            stats = step(scene, dt, scheme)
-        self._update(scene)
-        return dataclasses.replace(stats, sleeping=int(self.asleep.sum()))
+        if not frozen.any():
+            yield
+            return
+        fixed = scene.fixed
+        scene.fixed = fixed | frozen
+        scene.velocities[frozen] = 0.0
+        scene.angular_velocities[frozen] = 0.0
+        try:
+            yield
+        finally:
+            scene.fixed = fixed
 
-    def _update(self, scene) -> None:
-        from engine.dynamics.picard import _bodies
-
+    def update(self, scene, radius: np.ndarray) -> None:
+        """After a step of ``scene`` (bodies thawed): count the steps each awake free body
+        has been at rest — surface speed |v| + |ω|·R below :attr:`speed`, R the bounding
+        ``radius (n,) float64`` of its tree — and put to sleep those at rest for
+        :attr:`steps` steps; bodies near a moving one (broad-phase candidates) wake or
+        start counting again."""
         free = ~scene.fixed
-        speed = np.linalg.norm(scene.velocities, axis=1) + _bodies(scene).radius * np.linalg.norm(
+        speed = np.linalg.norm(scene.velocities, axis=1) + radius * np.linalg.norm(
             scene.angular_velocities, axis=1
         )
         awake = free & ~self.asleep

@@ -1,0 +1,179 @@
+"""The forces of one configuration of a scene, and their reuse by the next time step.
+
+:func:`evaluate` searches the contacts of a configuration and turns them into forces and
+torques (:class:`Wrench`, normal and friction apart) with the scene's contact law: an
+:class:`Evaluation`. A converged Picard step (:mod:`engine.dynamics.picard`) ends in the
+configuration it evaluated last; it leaves that evaluation in ``Scene.warm_start`` (a
+:class:`WarmStart`), and the next step's first iteration takes it from there
+(:func:`reused`) instead of searching the same configuration again. Anything that
+changes the scene from outside clears ``Scene.warm_start``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from engine.collision.configuration import Contacts
+from engine.dynamics.bodies import body_terms
+from engine.kernels.dynamics import contact_forces as kf
+
+__all__ = ["Evaluation", "WarmStart", "Wrench", "cross", "evaluate", "evaluation_key", "reused"]
+
+
+class Wrench(NamedTuple):
+    """Forces and torques on every body: ``force``, ``torque`` (n, 3) float64 (world
+    frame; torques about the lever origins of the evaluation)."""
+
+    force: np.ndarray
+    torque: np.ndarray
+
+    def plus(self, other: Wrench) -> Wrench:
+        """Row-wise ``self + other``, force and torque."""
+        return Wrench(self.force + other.force, self.torque + other.torque)
+
+    def minus(self, other: Wrench) -> Wrench:
+        """Row-wise ``self − other``, force and torque."""
+        return Wrench(self.force - other.force, self.torque - other.torque)
+
+
+class Evaluation(NamedTuple):
+    """The forces of one configuration.
+
+    normal : Wrench — normal contact forces plus gravity and the external forces
+    friction : Wrench — friction forces
+    stiffness : (n, 3) float64 — per body, sums over its contacts: ∂F_n/∂δ, the
+        friction's ∂F_t/∂v_t, and |F_n| + |F_t| (the force scale of Picard's test)
+    contacts : Contacts — the leaf contacts found
+    energy : float — elastic energy stored in the contact springs
+    changed : bool — the search's fronts changed (multiscale), so the contact set of
+        the configuration is not final
+    """
+
+    normal: Wrench
+    friction: Wrench
+    stiffness: np.ndarray
+    contacts: Contacts
+    energy: float
+    changed: bool
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """The last converged step's final evaluation, kept for the next step.
+
+    key : tuple — what besides the state the forces depend on (:func:`evaluation_key`)
+    state : tuple of (n, 3), (n, 4), (n, 3), (n, 3) float64 — positions, orientations,
+        velocities and angular velocities it was made of
+    origins : (n, 3) float64 — the lever origins of its torques
+    evaluation : Evaluation
+    """
+
+    key: tuple
+    state: tuple
+    origins: np.ndarray
+    evaluation: Evaluation
+
+
+def evaluate(scene, configuration, origins: np.ndarray, search) -> Evaluation:
+    """The :class:`Evaluation` of ``configuration`` (positions, orientations, velocities,
+    angular velocities) with torques about ``origins (n, 3)``: ``search(positions,
+    orientations)`` returns ``(contacts, surrogate contacts or None, changed)``.
+    Surrogate contacts (multiscale) add normal forces only."""
+    x, q, v, w = configuration
+    contacts, surrogate, changed = search(x, q)
+    bodies = body_terms(scene)
+    force = bodies.force.copy()
+    torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
+    stiffness = np.zeros((len(x), 3))
+    out = (force, torque, friction_force, friction_torque, stiffness)
+    law = scene.contact_model.parameters()
+    energy = 0.0
+    for found, parameters in ((contacts, law), (surrogate, (*law[:3], 0.0, law[4]))):
+        if found is not None and len(found.points):
+            energy += kf.contact_forces(
+                found.bodies,
+                found.offsets,
+                found.points,
+                found.normals,
+                found.overlaps,
+                (x, v, w, origins),
+                (scene.masses, scene.epsilon),
+                parameters,
+                out,
+            )
+    if len(bodies.fixed):
+        for array in (force, torque, friction_force, friction_torque):
+            array[bodies.fixed] = 0.0
+    return Evaluation(
+        normal=Wrench(force, torque),
+        friction=Wrench(friction_force, friction_torque),
+        stiffness=stiffness,
+        contacts=contacts,
+        energy=energy,
+        changed=changed,
+    )
+
+
+def evaluation_key(scene, search) -> tuple:
+    """What, besides the state, an evaluation's forces depend on."""
+    return (
+        type(search).__name__,
+        getattr(search, "hierarchy", None),
+        len(scene),
+        scene.kernel,
+        scene.precision,
+        scene.contact_model.parameters(),
+        scene.gravity.tobytes(),
+        scene.external_forces.tobytes(),
+        scene.fixed.tobytes(),
+        scene.masses.tobytes(),
+    )
+
+
+def reused(scene, key: tuple, start) -> Evaluation | None:
+    """``scene.warm_start``'s evaluation if it was made of exactly this state ``start``
+    (same positions, orientations, velocities, spins) and ``key`` (everything else the
+    forces depend on), with its torques moved to this step's lever origins; else None.
+
+    A converged Picard step ends in the configuration whose forces it evaluated last, so
+    the next step's first iteration — the forces of its start — is that evaluation: it
+    is reused instead of searched again. Only the lever origins of the torques differ
+    (the start of the step): τ' = τ + (o_old − o_new) × F for each body's contact force F.
+    """
+    warm = scene.warm_start
+    if warm is None:
+        return None
+    if warm.key != key or not all(
+        np.array_equal(a, b) for a, b in zip(warm.state, start, strict=True)
+    ):
+        return None
+    evaluation = warm.evaluation
+    normal, friction = evaluation.normal, evaluation.friction
+    if evaluation.stiffness.any():  # else no contact force: the torques have no lever to move
+        normal, friction = _moved_levers(scene, normal, friction, warm.origins, start[0])
+    return evaluation._replace(normal=normal, friction=friction, changed=False)
+
+
+def _moved_levers(scene, normal: Wrench, friction: Wrench, old, new):
+    """``(normal, friction)`` wrenches with the torques of the contact forces taken about
+    ``new (n, 3)`` instead of ``old`` lever origins."""
+    bodies = body_terms(scene)
+    lever = old - new
+    normal_torque = normal.torque + cross(lever, normal.force - bodies.force)
+    friction_torque = friction.torque + cross(lever, friction.force)
+    normal_torque[bodies.fixed] = 0.0
+    friction_torque[bodies.fixed] = 0.0
+    return Wrench(normal.force, normal_torque), Wrench(friction.force, friction_torque)
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a × b of ``(n, 3)`` float64 arrays (np.cross costs ~20 µs of checks per
+    call)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
