@@ -1,4 +1,4 @@
-"""Dynamics: contact force laws, mass properties, Picard time stepping and sleeping bodies."""
+"""Dynamics: force laws, mass properties, body terms, forces of a configuration, Picard, sleep."""
 
 from engine.dynamics.forces import ContactModel, HertzSpring, LinearSpring, PaperSpring
 from engine.dynamics.picard import StepStats, TunnellingWarning
