@@ -31,7 +31,7 @@ from engine.arguments import coordinate_limit
 from engine.errors import InvalidArgumentError
 from engine.kernels.collision import broadphase as kb
 
-__all__ = ["candidate_pairs"]
+__all__ = ["candidate_pairs", "overlapping_pairs"]
 
 SLACK = 64 * float(np.finfo(np.float64).eps)
 """Relative widening of each bounding box, so that rounding in the cell indices never
@@ -45,10 +45,11 @@ CELL_FACTOR = 1.5
 BUCKET_LOAD = 2
 """Entries per hash bucket (rounded to a power of two of buckets)."""
 SMALL_SCENE = 64
-"""Up to this many bodies every pair is tested (``kernels.broadphase.all_pairs``): the
-grid's set-up (levels, hashing, sorting) costs tens of µs. ``benchmarks/broadphase.py``,
-the whole call with its checks: 11–42 µs by brute force against 48–59 µs through the grid
-for 2–64 bodies; the grid wins from about 100 (76 against 153 µs at 128)."""
+"""Up to this many bodies every pair is tested
+(:func:`~engine.kernels.collision.broadphase.all_pairs`): the grid's set-up (levels,
+hashing, sorting) costs tens of µs. ``benchmarks/broadphase.py``, the whole call with its
+checks: 11–42 µs by brute force against 48–59 µs through the grid for 2–64 bodies; the
+grid wins from about 100 (76 against 153 µs at 128)."""
 _NO_PAIRS = np.zeros((0, 2), np.int64)
 
 
@@ -135,6 +136,8 @@ def _grid(c: np.ndarray, r: np.ndarray) -> tuple:
 
 
 def _check(centres, radii, fixed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(c (n, 3) float64, r (n,) float64, f (n,) bool)``, C-contiguous, from the arguments
+    of :func:`candidate_pairs`; raises :class:`InvalidArgumentError` as it documents."""
     c = _real(centres, "centres", "(n, 3)")
     if c.ndim != 2 or c.shape[1] != 3:
         raise InvalidArgumentError(f"centres must have shape (n, 3), got {c.shape}")
@@ -164,6 +167,7 @@ def _check(centres, radii, fixed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _real(x, name: str, shape: str) -> np.ndarray:
+    """``x`` as a C-contiguous float64 array (``shape`` names the expected shape in errors)."""
     if np.iscomplexobj(x):
         raise InvalidArgumentError(f"{name} must be real, got complex values")
     try:

@@ -88,13 +88,15 @@ class KernelStats:
 
     @classmethod
     def from_array(cls, counts: np.ndarray) -> KernelStats:
+        """The counters of a kernel's ``stats (N_STATS,)`` int64 array."""
         slots = (tb.STAT_PAIRS, tb.STAT_CULLED, tb.STAT_ITERATIVE, tb.STAT_FALLBACKS)
         return cls(*(int(counts[k]) for k in slots))
 
 
 @dataclass(frozen=True)
 class TriangleDistances:
-    """Result of :func:`triangle_distances` for ``n`` pairs.
+    """Result of :func:`triangle_distances` for ``n`` pairs; "float" is the kernel's
+    ``precision`` (float32 or float64).
 
     distance : (n,) float — closest distance (exact for the exact kernel, for
         fallbacks, and within the tolerance for ``CONTACT``; an upper bound for
@@ -115,7 +117,8 @@ class TriangleDistances:
 
 @dataclass(frozen=True)
 class TriangleContacts:
-    """Pairs within their contact distance.
+    """Pairs within their contact distance; "float" is the kernel's ``precision``
+    (float32 or float64).
 
     All-pairs results are ordered by (index in a, index in b); listed results
     follow the order of the given ``pairs``.
@@ -156,6 +159,7 @@ class TriangleSet:
 
     Attributes
     ----------
+    dtype : numpy.dtype — float32 or float64, of every array below
     coords : (9, n) — rows x0 y0 z0 x1 y1 z1 x2 y2 z2
     frames : (14, n) — per-triangle normal, dual basis, inverse edge lengths, validity,
         conditioning κ = 1/sin θ (θ the angle at vertex 0)
@@ -193,7 +197,7 @@ class TriangleSet:
         return self
 
     def subset(self, index: np.ndarray, precision: str) -> TriangleSet:
-        """Triangles ``index`` in ``precision`` (rounded from this set's arrays)."""
+        """Triangles ``index (k,)`` (int) in ``precision`` (rounded from this set's arrays)."""
         dtype = check_precision(precision)
         return TriangleSet.prepared(
             self.coords[:, index].astype(dtype), self.frames[:, index].astype(dtype)
