@@ -1,4 +1,4 @@
-"""Collision: broad phase; contact searches: flat, multiresolution, batched, multiscale; proximity."""
+"""Collision: broad phase, contact search (flat, multiresolution, batch, multiscale), proximity."""
 
 from engine.collision.batch import ContactBatch, PairCache, TreeBank, find_contacts_batch
 from engine.collision.broadphase import candidate_pairs
