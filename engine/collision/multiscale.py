@@ -5,8 +5,10 @@ one step: a complete cut of the pair's tree product (every leaf pair lies under 
 one entry), starting at the two roots. Each iteration evaluates every entry at the
 guessed configuration, then
 
-* **widens**: an entry with a surrogate whose iterative result is "contact" or "not
-  converged" is replaced by its child pairs (both surrogates unfold, a leaf stays) —
+* **widens**: an entry with a surrogate whose test says "contact" or "not converged"
+  (bounding spheres first, then the iterative kernel — exact for ``kernel="exact"`` —
+  as in the contact search) is replaced by its child pairs: every surrogate of the pair
+  unfolds, a leaf stays (the traversal's unfold rule, :mod:`engine.collision.query`) —
   one level per iteration (the paper: "one Picard iteration per unfolding step");
 * **narrows**: a complete group of siblings that are all certainly apart folds back to
   its parent ("if all children … do certainly not contribute … they are replaced with
@@ -31,10 +33,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.collision.contacts import (
-    TINY,
+from engine.collision.query import (
     ULP,
+    contact_constants,
     query_parameters,
+    unfold_pairs,
+    unfolded_ranges,
 )
 from engine.kernels.collision.batch import query_margin, relative_pose
 from engine.kernels.collision.traversal import front_kernel
@@ -44,7 +48,17 @@ __all__ = ["MultiscaleSearch"]
 
 
 class _Front:
-    """The front of one body pair: entries (node pairs) with their parents."""
+    """The front of one body pair: ``g`` entries (node pairs) with their parents.
+
+    nodes : (g, 2) int64 — (node of A, node of B) of each entry, a complete cut
+    parents : (g, 2) int64 — the pair each entry was unfolded from, (−1, −1) for the roots
+        and for a folded pair whose own parent is not known
+    quiet : (g,) bool — entry certainly apart at the last evaluation
+    up : the parent pair of every pair unfolded this far (a folded pair gets its back)
+    folded, veto : pairs folded in this step, and those that came back after a fold
+    groups, is_leaf, static : caches (see :meth:`MultiscaleSearch._narrow` and
+        :func:`_static`), None when they must be recomputed
+    """
 
     def __init__(self) -> None:
         self.nodes = np.zeros((1, 2), np.int64)
@@ -163,7 +177,13 @@ class MultiscaleSearch:
         return leaf_contacts, surrogate, unfolded, folded, len(found)
 
     def _widen(self, front, ta, tb, status, is_leaf) -> int:
-        """Replace surrogate entries in contact or not converged by their child pairs."""
+        """Replace the surrogate entries in contact or not converged (``status (g,)`` int8 > 0,
+        ``is_leaf (g,)`` bool false) by their child pairs — the traversal's unfold rule,
+        shared with the kernels (:func:`~engine.collision.query.unfold_pairs`: every
+        surrogate of the pair unfolds, a leaf stays). Unlike the kernels' front, this one
+        remembers each entry's parent pair, and each unfolded pair's own parent in
+        ``front.up``, so that :meth:`_narrow` can fold children back. Returns the number of
+        entries unfolded."""
         grow = np.flatnonzero((status > 0) & ~is_leaf)
         if not len(grow):
             return 0
@@ -173,14 +193,7 @@ class MultiscaleSearch:
             if key in front.folded:
                 front.veto.add(key)  # re-added after a fold: never fold again this step
         grown = front.nodes[grow]
-        i, j = grown[:, 0], grown[:, 1]
-        fa, fb = _fanout(ta, i), _fanout(tb, j)
-        first_a = np.where(ta.face[i] >= 0, i, ta.first_child[i])
-        first_b = np.where(tb.face[j] >= 0, j, tb.first_child[j])
-        sizes = fa * fb
-        group = np.repeat(np.arange(len(grow)), sizes)
-        rank = np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
-        kids = np.stack([first_a[group] + rank // fb[group], first_b[group] + rank % fb[group]], 1)
+        kids, group = unfold_pairs(ta, tb, grown)
         keep = np.ones(len(front.nodes), bool)
         keep[grow] = False
         front.nodes = np.concatenate([front.nodes[keep], kids])
@@ -201,7 +214,7 @@ class MultiscaleSearch:
             keys = parents[inner, 0] * width + parents[inner, 1]
             unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
             pa, pb = unique // width, unique % width
-            complete = counts == _fanout(ta, pa) * _fanout(tb, pb)
+            complete = counts == unfolded_ranges(ta, pa)[1] * unfolded_ranges(tb, pb)[1]
             front.groups = (inner, keys, unique, inverse, complete, pa, pb, width)
         inner, keys, unique, inverse, complete, pa, pb, width = front.groups
         if not complete.any():
@@ -234,12 +247,7 @@ def _static(ta, tb, precision: str, kernel: str) -> tuple:
     constants, (faces of B, keep_all, normals of A), coarse and leaf parameters)``."""
     dtype = np.dtype(precision).type
     set_a, master = ta.views.geometry.node_set(precision, False), tb.views.geometry.master
-    constants = (
-        ta.leaf_epsilon,
-        tb.leaf_epsilon,
-        TINY * max(ta.bounding_radius, tb.bounding_radius),
-        min(ta.leaf_epsilon, tb.leaf_epsilon),
-    )
+    constants = contact_constants(ta, tb)
     return (
         dtype,
         (ta.views.geometry.extent, tb.views.geometry.extent),
@@ -253,11 +261,6 @@ def _static(ta, tb, precision: str, kernel: str) -> tuple:
         ),
         *query_parameters(kernel, dtype),
     )
-
-
-def _fanout(tree, nodes: np.ndarray) -> np.ndarray:
-    """(k,) number of children of each node (1 for a leaf: it stands for itself)."""
-    return np.where(tree.face[nodes] >= 0, 1, tree.child_count[nodes]).astype(np.int64)
 
 
 def _surrogate_contacts(ta, tb, hits, rot_a, origin_a, center_a):
