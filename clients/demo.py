@@ -9,7 +9,8 @@ is given. Writes into ``--out``:
 * ``vtk/frame_NNNN.vtk`` and ``vtk/particle_on_plane.pvd`` — the sphere and the plane as
   a time series for ParaView (legacy VTK polydata, one file per frame).
 
-Imports neither engine nor service: the service runs as a separate process.
+Imports neither engine nor service: the service runs as a separate process
+(:mod:`common.serving`).
 """
 
 from __future__ import annotations
@@ -17,17 +18,16 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
-import socket
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import httpx
 import numpy as np
 import trimesh
+
+from common.rotation import rotation_matrix
+from common.serving import ServiceProcess, ServiceStartError
 
 from .sync import Client
 
@@ -38,29 +38,18 @@ DOWNHILL = np.array([math.cos(TILT), 0.0, -math.sin(TILT)])
 
 @contextlib.contextmanager
 def local_service():
-    """``python -m service`` on a free port with a temporary store; yields its URL."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    """``python -m service`` on a free port with a temporary store (its output on this
+    process's); yields its URL. ``SystemExit`` saying why if it does not get ready."""
     with tempfile.TemporaryDirectory() as tmp:
-        env = {**os.environ, "MRDEM_PORT": str(port), "MRDEM_DATA_DIR": str(Path(tmp) / "d")}
-        proc = subprocess.Popen([sys.executable, "-m", "service"], env=env)
-        url = f"http://127.0.0.1:{port}"
+        service = ServiceProcess(Path(tmp) / "d", ready_timeout=900)
         try:
-            deadline = time.monotonic() + 900
-            while True:
-                if proc.poll() is not None:
-                    raise SystemExit(f"the service exited with {proc.returncode}")
-                with contextlib.suppress(httpx.TransportError):
-                    if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
-                        break
-                if time.monotonic() > deadline:
-                    raise SystemExit("the service did not get ready")
-                time.sleep(0.25)
-            yield url
+            service.start()
+        except ServiceStartError as exc:
+            raise SystemExit(str(exc)) from None
+        try:
+            yield service.url
         finally:
-            proc.terminate()
-            proc.wait(30)
+            service.stop(grace=30)
 
 
 def run(url: str, steps: int, dt: float, every: int) -> dict:
@@ -126,17 +115,6 @@ def write_png(path: Path, result: dict) -> str | None:
     return None
 
 
-def _rotation(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def write_vtk(folder: Path, result: dict) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     ball = result["ball"]
@@ -146,7 +124,7 @@ def write_vtk(folder: Path, result: dict) -> Path:
     plane = np.array([s * u * 4 + t * v * 4 for s, t in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
     entries = []
     for i, (t, position, orientation) in enumerate(result["frames"]):
-        points = np.vstack([ball.vertices @ _rotation(orientation).T + position, plane])
+        points = np.vstack([ball.vertices @ rotation_matrix(orientation).T + position, plane])
         n = len(ball.vertices)
         polygons = [f"3 {a} {b} {c}" for a, b, c in ball.faces] + [f"4 {n} {n + 1} {n + 2} {n + 3}"]
         size = 4 * len(ball.faces) + 5

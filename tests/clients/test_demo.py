@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from clients import demo
+from common.serving import readyz
 
 
 def test_demo_writes_csv_png_and_vtk(service, tmp_path, capsys):
@@ -21,3 +22,9 @@ def test_demo_writes_csv_png_and_vtk(service, tmp_path, capsys):
     pvd = (tmp_path / "vtk" / "particle_on_plane.pvd").read_text()
     assert pvd.count("<DataSet ") == 20
     assert "lowest gap" in capsys.readouterr().out
+
+
+def test_without_url_the_demo_starts_a_service_and_stops_it():
+    with demo.local_service() as url:
+        assert readyz(url)
+    assert not readyz(url)  # stopped, its temporary store gone with it

@@ -9,12 +9,12 @@ import time
 
 import pytest
 import uvicorn
-from harness import free_port
 from starlette.applications import Starlette
 from starlette.responses import JSONResponse
 from starlette.routing import Route
 
 from clients import Client, ProblemError, RemoteScene, ServiceUnreachable
+from common.serving import free_port
 
 
 class Flaky:

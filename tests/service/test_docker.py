@@ -9,11 +9,11 @@ import re
 import shlex
 import subprocess
 import sys
-import time
-from pathlib import Path
 
 import httpx
-from harness import ROOT, free_port
+from harness import ROOT
+
+from common.serving import ServiceProcess, free_port
 
 DOCKERFILE = ROOT / "docker" / "Dockerfile"
 
@@ -45,35 +45,40 @@ def test_the_image_runs_as_a_non_root_user_with_volumes():
     assert "mrdem-data:/data" in compose and "dockerfile: docker/Dockerfile" in compose
 
 
+def test_the_image_copies_every_package_it_installs():
+    pyproject = (ROOT / "pyproject.toml").read_text()  # (no tomllib on Python 3.10)
+    find = pyproject.split("[tool.setuptools.packages.find]", 1)[1]
+    include = re.search(r"^include\s*=\s*\[([^\]]*)\]", find, re.MULTILINE).group(1)
+    packages = [name.rstrip("*") for name in json.loads(f"[{include}]")]
+    assert "common" in packages  # the service and the clients import it
+    copied = [rest for word, rest in _instructions() if word == "COPY"]
+    for package in packages:
+        assert f"{package} {package}" in copied, f"docker/Dockerfile does not COPY {package}/"
+
+
 def test_the_container_command_serves_and_passes_its_health_check(tmp_path):
     steps = _instructions()
     env_line = next(rest for word, rest in steps if word == "ENV")
     env = {**os.environ, **dict(kv.split("=", 1) for kv in shlex.split(env_line))}
-    port = free_port()
-    # the paths and port of this machine instead of the image's; the kernel cache of the
-    # test run (the image's cache volume starts empty and compiles once)
-    env.update(
-        MRDEM_DATA_DIR=str(tmp_path / "data"),
-        MRDEM_PORT=str(port),
-        MRDEM_HOST="127.0.0.1",
-        NUMBA_CACHE_DIR=os.environ.get("NUMBA_CACHE_DIR", str(ROOT / ".numba-cache")),
-    )
+    # the kernel cache of the test run (the image's cache volume starts empty and compiles
+    # once); the service process sets this machine's data dir, host and port over the image's
+    env["NUMBA_CACHE_DIR"] = os.environ.get("NUMBA_CACHE_DIR", str(ROOT / ".numba-cache"))
     command = _exec_form(next(rest for word, rest in steps if word == "CMD"))
-    assert command == ["python", "-m", "service"]
+    assert command == ["python", "-m", "service"]  # what ServiceProcess runs
+    port = free_port()
     check = next(rest for word, rest in steps if word == "HEALTHCHECK").split(" CMD ", 1)[1]
     check = [sys.executable if a == "python" else a for a in _exec_form(check)]
     check = [a.replace(":8000/", f":{port}/") for a in check]
-    proc = subprocess.Popen([sys.executable, *command[1:]], cwd=ROOT, env=env)
+    assert any(f":{port}/readyz" in a for a in check)
+
+    def healthy() -> bool:
+        return subprocess.run(check, capture_output=True, timeout=30).returncode == 0
+
+    data = tmp_path / "data"
+    service = ServiceProcess(data, port=port, env=env, cwd=ROOT, log_dir=tmp_path)
     try:
-        deadline = time.monotonic() + 600
-        healthy = False
-        while time.monotonic() < deadline and not healthy:
-            assert proc.poll() is None, "the container command exited"
-            healthy = subprocess.run(check, capture_output=True, timeout=30).returncode == 0
-            time.sleep(0.2)
-        assert healthy
-        assert httpx.get(f"http://127.0.0.1:{port}/readyz").json()["status"] == "ready"
-        assert (Path(env["MRDEM_DATA_DIR"]) / "mrdem.sqlite3").exists()
+        service.start(ready=healthy)  # the health check passes (else: the log's tail)
+        assert httpx.get(f"{service.url}/readyz").json()["status"] == "ready"
+        assert (data / "mrdem.sqlite3").exists()
     finally:
-        proc.terminate()
-        proc.wait(20)
+        service.stop()
