@@ -49,7 +49,7 @@ from engine.geometry import (
     triangle_distances,
 )
 from engine.scene import DEFAULT_SCHEME, SCHEMES, Scene, SceneState
-from engine.trees import SurrogateTree, TreeStats, build_tree
+from engine.trees import SurrogateTree, TreeStats, build_tree, size_epsilon
 from engine.warmup import warmup
 
 __all__ = [
@@ -90,6 +90,7 @@ __all__ = [
     "Mesh",
     "SurrogateTree",
     "build_tree",
+    "size_epsilon",
     "load_mesh",
     "RepairReport",
     "repair_mesh",

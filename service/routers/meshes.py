@@ -20,8 +20,7 @@ import numpy as np
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 
-from engine import InvalidMeshError, Mesh, load_mesh
-from engine.trees.halos import size_epsilon
+from engine import InvalidMeshError, Mesh, load_mesh, size_epsilon
 
 from ..auth import owner_of
 from ..builds import content_id, mesh_facts
@@ -255,7 +254,8 @@ def _repaired(make, *args) -> Mesh:
 
 def _identify(mesh: Mesh, options: dict) -> tuple[float, int, str]:
     """``(epsilon, branching, mesh id)`` of an upload: ε as given (> 0) or the size
-    default (:func:`engine.trees.halos.size_epsilon`), branching in 2 … 64 (default 8)."""
+    default (:func:`engine.size_epsilon`: the engine's one rule), branching in 2 … 64
+    (default 8)."""
     epsilon = options.get("epsilon")
     epsilon = size_epsilon(mesh) if epsilon is None else number(epsilon, "epsilon", 0.0)
     if not epsilon > 0:
