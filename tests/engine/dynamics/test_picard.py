@@ -1,0 +1,202 @@
+"""Time stepping (engine/dynamics/picard.py): what a step reports (StepStats), the travel
+bound and its TunnellingWarning or sub-steps, halving a step that does not converge, and
+Picard settling on a contact-set switch (``_switch``)."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from engine import InvalidArgumentError, PaperSpring, Scene, TunnellingWarning, shapes
+from engine.dynamics.picard import travel
+
+BALL = shapes.icosphere(2, radius=0.5)  # 320 faces
+EPS = 0.01
+
+
+def free_flight(scheme: str = "implicit", **options) -> Scene:
+    """Two balls far apart (no candidate pair), under gravity."""
+    scene = Scene(scheme=scheme, **options)
+    scene.add_body(BALL, position=(0, 0, 0), velocity=(0.3, 0, 0.1), epsilon=EPS)
+    scene.add_body(
+        BALL,
+        position=(5, 0, 0),
+        velocity=(0, -0.2, 0),
+        angular_velocity=(0, 0, 0.4),
+        epsilon=2 * EPS,
+    )
+    return scene
+
+
+def ball_on_plane(scheme: str) -> Scene:
+    """A ball resting in its halo on a plane: contacts in every step."""
+    scene = Scene(scheme=scheme, contact_model=PaperSpring(damping=0.5, friction=0.5))
+    scene.add_plane(size=3.0, divisions=4, epsilon=EPS)
+    scene.add_body(BALL, position=(0.1, -0.05, 0.5 + 1.5 * EPS), epsilon=EPS)
+    return scene
+
+
+# ------------------------------------------------------------------ StepStats
+def test_an_explicit_step_is_one_evaluation_and_never_halved():
+    scene = ball_on_plane("explicit")
+    scene.max_halvings = 3
+    stats = scene.step(1e-4)
+    assert (stats.scheme, stats.dt, stats.converged) == ("explicit", 1e-4, True)
+    assert (stats.picard_iterations, stats.evaluations, stats.halvings) == (1, 1, 0)
+    assert stats.substeps == 1 and stats.sleeping == 0 and stats.seconds > 0
+    assert scene.time == 1e-4
+
+
+@pytest.mark.parametrize("scheme", ["implicit", "implicit-surrogate", "implicit-midpoint"])
+def test_an_implicit_steps_stats_describe_its_last_evaluation(scheme):
+    scene = ball_on_plane(scheme)
+    for _ in range(5):
+        stats = scene.step(1e-3)
+    assert stats.converged and stats.scheme == scheme and stats.dt == 1e-3
+    assert 1 <= stats.evaluations <= stats.picard_iterations <= scene.max_picard_iterations
+    assert scene.time == pytest.approx(5e-3, rel=1e-15)
+    if scheme == "implicit-midpoint":
+        return  # its stats describe the midpoint (documented); the state is the end
+    # the accepted configuration is the scene's state: search it again
+    contacts = scene.contacts(scene.positions, scene.orientations, scheme != "implicit")
+    assert stats.body_pairs == len(contacts.bodies) == 1
+    assert stats.contacts == len(contacts.points) > 0
+    assert stats.triangle_pairs == contacts.counters["triangle_pairs"]
+    k = scene.contact_model.stiffness * math.sqrt(scene.masses[1]) / (2 * EPS)
+    energy = 0.5 * k * float((contacts.overlaps**2).sum())  # the paper's spring, m_red = m
+    assert stats.elastic_energy == pytest.approx(energy, rel=1e-9)
+    assert stats.max_overlap == pytest.approx(contacts.overlaps.max() / (2 * EPS), rel=1e-12)
+
+
+# ------------------------------------------------------------------ travel and tunnelling
+def test_travel_is_the_largest_surface_motion_over_epsilon():
+    scene = free_flight()
+    dt = 0.01
+    radius = [scene.trees[t].bounding_radius for t in scene.tree_index]
+    speeds = [0.3**2 + 0.1**2, 0.2**2]
+    ratios = [
+        math.sqrt(speeds[0]) * dt / EPS,
+        (math.sqrt(speeds[1]) + 0.4 * radius[1]) * dt / (2 * EPS),
+    ]
+    ratio, body = travel(scene, dt)
+    assert ratio == pytest.approx(max(ratios), rel=1e-14)
+    assert body == int(np.argmax(ratios))
+    assert scene.step(dt).travel == pytest.approx(ratio, rel=1e-14)
+
+
+def test_fixed_bodies_do_not_travel():
+    scene = Scene()
+    scene.add_plane()
+    assert travel(scene, 1.0) == (0.0, -1)
+
+
+def test_a_step_that_travels_more_than_epsilon_warns():
+    scene = free_flight(gravity=(0, 0, 0))
+    dt = 2.5 * EPS / math.hypot(0.3, 0.1)  # body 0 moves 2.5 ε (body 1 less)
+    with pytest.warns(TunnellingWarning, match=r"body 0 moves 2\.5 times its ε") as caught:
+        stats = scene.step(dt)
+    assert f"Use dt <= {dt / 2.5:.3g} or Scene(substeps=True)" in str(caught[0].message)
+    assert stats.substeps == 1 and stats.travel == pytest.approx(2.5, rel=1e-12)
+
+
+def test_substeps_split_the_step_into_ceil_travel_equal_parts():
+    dt = 2.5 * EPS / math.hypot(0.3, 0.1)
+    whole, split = free_flight(gravity=(0, 0, 0)), free_flight(gravity=(0, 0, 0), substeps=True)
+    start = split.positions.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no TunnellingWarning with sub-steps
+        stats = split.step(dt)
+    assert stats.substeps == 3 and stats.dt == dt and stats.travel == pytest.approx(2.5)
+    assert stats.picard_iterations >= 3  # summed over the parts
+    assert split.time == pytest.approx(dt, rel=1e-15)
+    # force-free: the bodies move by dt·v however the step is cut
+    np.testing.assert_allclose(split.positions, start + dt * split.velocities, atol=1e-14)
+    with pytest.warns(TunnellingWarning):
+        whole.step(dt)
+    np.testing.assert_allclose(split.positions, whole.positions, atol=1e-14)
+
+
+# ------------------------------------------------------------------ halving
+def test_validation_of_the_picard_settings():
+    for options, message in (
+        ({"max_halvings": -1}, "max_halvings"),
+        ({"max_picard_iterations": 0}, "max_picard_iterations"),
+        ({"picard_tolerance": 0.0}, "picard_tolerance"),
+        ({"picard_tolerance": 1.0}, "picard_tolerance"),
+    ):
+        with pytest.raises(InvalidArgumentError, match=message):
+            Scene(**options)
+
+
+@pytest.mark.parametrize("halvings", [0, 1, 2])
+def test_a_step_that_does_not_converge_is_halved_max_halvings_deep(halvings):
+    """One Picard iteration never converges (convergence compares an iteration's computed
+    forces with the applied ones of the one before), so every part fails and the step is
+    cut into 2^h equal parts: h levels of halving, 2^h − 1 splits. Under gravity alone,
+    k backward-Euler parts of dt/k move a body by dt·v + g·dt²·(k + 1)/(2k)."""
+    scene = free_flight(max_picard_iterations=1, max_halvings=halvings)
+    dt = 1e-3
+    x0, v0 = scene.positions.copy(), scene.velocities.copy()
+    stats = scene.step(dt)
+    parts = 2**halvings
+    assert not stats.converged
+    assert stats.halvings == parts - 1
+    assert stats.picard_iterations == stats.evaluations == parts
+    assert stats.dt == dt and scene.time == pytest.approx(dt, rel=1e-15)
+    g = scene.gravity
+    expected = x0 + dt * v0 + g * dt**2 * (parts + 1) / (2 * parts)
+    np.testing.assert_allclose(scene.positions, expected, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(scene.velocities, v0 + dt * g, rtol=0, atol=1e-15)
+
+
+def test_a_converging_step_is_not_halved():
+    scene = free_flight(max_halvings=3)
+    stats = scene.step(1e-3)
+    assert stats.converged and stats.halvings == 0
+
+
+# ------------------------------------------------------------------ settling on a switch
+def _stack() -> Scene:
+    """A plane and two boxes on it, one on the other (only the bodies matter here)."""
+    scene = Scene(scheme="implicit-surrogate", contact_model=PaperSpring(damping=0.5))
+    scene.add_plane(size=6.0, divisions=2, epsilon=0.01)
+    box = shapes.box()
+    scene.add_body(box, position=(0.0, 0.0, 0.52), epsilon=0.017)
+    scene.add_body(box, position=(0.1, 0.05, 1.55), epsilon=0.017)
+    return scene
+
+
+def _two_states(scene, rng):
+    n = len(scene)
+    base = (rng.normal(size=(n, 3)) * 5.0, rng.normal(size=(n, 3)))
+    jump = (np.zeros((n, 3)), np.zeros((n, 3)))
+    jump[0][1:] = rng.normal(size=(n - 1, 3))  # about 10 % of the free bodies' forces
+    a = base
+    b = (base[0] + jump[0], base[1] + jump[1])
+    return a, b
+
+
+def test_picard_settles_on_a_contact_set_switch_and_only_there():
+    """Computed forces that alternate between two states A and B, with the applied forces
+    between them, are a settled step; a third state, too few iterations, or applied forces
+    off the segment A–B are not."""
+    from engine.dynamics.picard import _switch
+
+    scene = _stack()
+    rng = np.random.default_rng(3)
+    a, b = _two_states(scene, rng)
+    gross, radius = np.full(len(scene), 9.81), np.ones(len(scene))
+    middle = tuple(0.3 * x + 0.7 * y for x, y in zip(a, b, strict=True))
+    assert _switch(scene, [a, b, a, b], middle, gross, radius)
+    assert _switch(scene, [b, b, a, a, b, b], a, gross, radius)  # period 4, an end
+    assert not _switch(scene, [a, a, b, b], middle, gross, radius)  # one change: a transition
+    assert not _switch(scene, [a, a, a, a, b, b], middle, gross, radius)
+    assert not _switch(scene, [a, b, a], middle, gross, radius)  # too few
+    off = (middle[0] + 3.0, middle[1])
+    assert not _switch(scene, [a, b, a, b], off, gross, radius)
+    c = (b[0] + 2.0 * (b[0] - a[0]), b[1])
+    assert not _switch(scene, [a, b, c, b], middle, gross, radius)  # three states
+    assert not _switch(scene, [a, a, a, b], middle, gross, radius)  # B seen once
