@@ -108,6 +108,11 @@ class MultiscaleSearch:
             front.veto.clear()
 
     def __call__(self, positions, orientations):
+        """Contacts at ``positions (n, 3)`` (centres of mass) and ``orientations (n, 4)``
+        (unit quaternions w, x, y, z), float64: ``(leaf, surrogate, changed)`` — the
+        :class:`~engine.collision.configuration.Contacts` of the leaf entries, those of the
+        surrogate entries in contact (damped; None when there are none), and whether any
+        front unfolded. Each candidate pair's front is evaluated, widened, then narrowed."""
         from engine.collision.configuration import SEARCH_COUNTERS, Contacts
 
         scene = self.scene
@@ -135,6 +140,11 @@ class MultiscaleSearch:
         )
 
     def _evaluate(self, front, a, b, origins, orientations, counters):
+        """Evaluate, widen and narrow the front of bodies ``a``, ``b`` (mesh-frame
+        ``origins (n, 3)``, ``orientations (n, 4)``); adds to ``counters``. Returns ``(leaf
+        contacts, surrogate contacts, entries unfolded, groups folded, leaf pairs in
+        contact)``, contacts as ``(points (c, 3), normals (c, 3), overlaps (c,))`` float64,
+        world frame."""
         scene = self.scene
         ta, tb = scene.trees[scene.tree_index[a]], scene.trees[scene.tree_index[b]]
         key = (id(ta), id(tb), scene.precision, scene.kernel)
@@ -285,10 +295,13 @@ def _surrogate_contacts(ta, tb, hits, rot_a, origin_a, center_a):
 
 
 def _empty():
+    """No contacts: ``(points (0, 3), normals (0, 3), overlaps (0,))`` float64."""
     return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
 
 
 def _stack(cls, pairs, rows, counters):
+    """A ``cls`` (:class:`~engine.collision.configuration.Contacts`) of the body ``pairs
+    (k, 2)`` int64 from one ``(points, normals, overlaps)`` row per pair, concatenated."""
     offsets = np.zeros(len(rows) + 1, np.int64)
     np.cumsum([len(r[2]) for r in rows], out=offsets[1:])
     if not rows:
