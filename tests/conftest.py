@@ -13,8 +13,17 @@ import pytest
 from harness import ServiceProcess
 from hypothesis import settings
 
-settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True, database=None)
-settings.register_profile("dev")
+# Both on Hypothesis' "default" profile explicitly: registering takes the current default as
+# the parent otherwise, and Hypothesis loads its own "ci" profile on import whenever CI is set.
+settings.register_profile(
+    "ci",
+    settings.get_profile("default"),
+    derandomize=True,
+    deadline=None,
+    print_blob=True,
+    database=None,
+)
+settings.register_profile("dev", settings.get_profile("default"))
 
 
 def in_ci(environ=os.environ) -> bool:
