@@ -148,13 +148,19 @@ class PairCache:
         hit[hit] = self.keys[at[hit]] == keys[hit]
         return np.where(hit, at, -1).astype(np.int64)
 
-    def _arrays(self, slots: np.ndarray) -> tuple:
-        return (self.skin, slots, self.rotations, self.shifts, self.offsets, self.near)
+    def _lists(self, slots: np.ndarray) -> kb.PairLists:
+        """The lists as the kernel reads them, ``slots (k,)`` int64 naming each query's."""
+        return kb.PairLists(self.skin, slots, self.rotations, self.shifts, self.offsets, self.near)
 
-    def _replace(self, keys: np.ndarray, slots: np.ndarray, kept: np.ndarray, batch) -> None:
+    def _replace(
+        self, keys: np.ndarray, slots: np.ndarray, kept: np.ndarray, batch: kb.BatchResult
+    ) -> None:
         """Hold exactly the pairs ``keys (k,)``: entry ``slots[q]`` where ``kept[q]`` (the
-        query used its list, which stays valid), else the query's new list in ``batch``."""
-        near_offsets, near, rotations, shifts = batch
+        query used its list, which stays valid), else the query's new list in ``batch``
+        (its ``near_offsets``, ``near``, ``rotations`` and ``shifts``)."""
+        near_offsets, near, rotations, shifts = (
+            batch.near_offsets, batch.near, batch.rotations, batch.shifts
+        )  # fmt: skip
         if kept.all() and np.array_equal(keys, self.keys):
             return  # the same pairs, every list kept: nothing to copy
         order = np.argsort(keys, kind="stable")
@@ -174,13 +180,13 @@ class PairCache:
         self.offsets, self.near = offsets, lists
 
 
-_NO_CACHE = (
-    0.0,
-    np.zeros(0, np.int64),
-    np.zeros((0, 3, 3)),
-    np.zeros((0, 3)),
-    np.zeros(1, np.int64),
-    np.zeros((0, 2), np.int64),
+_NO_LISTS = kb.PairLists(
+    skin=0.0,
+    slot=np.zeros(0, np.int64),
+    rotations=np.zeros((0, 3, 3)),
+    shifts=np.zeros((0, 3)),
+    offsets=np.zeros(1, np.int64),
+    near=np.zeros((0, 2), np.int64),
 )
 
 
@@ -191,6 +197,14 @@ class TreeBank:
     ----------
     trees : sequence of SurrogateTree — referred to by position in queries
     precision : "float32" or "float64"
+
+    Attributes
+    ----------
+    nodes : :class:`~engine.kernels.collision.batch.NodeBank` — every tree's node arrays
+        concatenated (prepared triangles in ``precision``, float64 masters, ε, tree
+        structure, face normals, bounding spheres)
+    table : :class:`~engine.kernels.collision.batch.TreeTable` — per tree: its rows in
+        ``nodes`` (node and face offsets and counts), leaf ε, bounding radius, extent
     """
 
     def __init__(self, trees: Sequence[SurrogateTree], precision: str = DEFAULT_PRECISION) -> None:
@@ -205,28 +219,28 @@ class TreeBank:
         self.dtype = np.dtype(precision).type
         sets = [t.views.geometry.node_set(precision, False) for t in trees]
         masters = [t.views.geometry.master for t in trees]
-        self.bank = (
-            np.concatenate([s.coords_rm for s in sets]),
-            np.concatenate([s.frames_rm for s in sets]),
-            np.concatenate([m.coords_rm for m in masters]),
-            np.concatenate([m.frames_rm for m in masters]),
-            np.concatenate([t.epsilon for t in trees]),
-            np.concatenate([t.face for t in trees]),
-            np.concatenate([t.first_child for t in trees]),
-            np.concatenate([t.child_count for t in trees]),
-            np.concatenate([t.views.geometry.face_normals for t in trees]),
-            np.concatenate([t.views.spheres for t in trees]),
+        self.nodes = kb.NodeBank(
+            coords=np.concatenate([s.coords_rm for s in sets]),
+            frames=np.concatenate([s.frames_rm for s in sets]),
+            master_coords=np.concatenate([m.coords_rm for m in masters]),
+            master_frames=np.concatenate([m.frames_rm for m in masters]),
+            epsilon=np.concatenate([t.epsilon for t in trees]),
+            face=np.concatenate([t.face for t in trees]),
+            first_child=np.concatenate([t.first_child for t in trees]),
+            child_count=np.concatenate([t.child_count for t in trees]),
+            face_normals=np.concatenate([t.views.geometry.face_normals for t in trees]),
+            spheres=np.concatenate([t.views.spheres for t in trees]),
         )
         nodes = np.array([len(t) for t in trees], np.int64)
         faces = np.array([len(t.views.geometry.face_normals) for t in trees], np.int64)
-        self.meta = (
-            np.concatenate([[0], np.cumsum(nodes)[:-1]]).astype(np.int64),
-            nodes,
-            np.concatenate([[0], np.cumsum(faces)[:-1]]).astype(np.int64),
-            faces,
-            np.array([t.leaf_epsilon for t in trees]),
-            np.array([t.bounding_radius for t in trees]),
-            np.array([t.views.geometry.extent for t in trees]),
+        self.table = kb.TreeTable(
+            node_offset=np.concatenate([[0], np.cumsum(nodes)[:-1]]).astype(np.int64),
+            node_count=nodes,
+            face_offset=np.concatenate([[0], np.cumsum(faces)[:-1]]).astype(np.int64),
+            face_count=faces,
+            leaf_epsilon=np.array([t.leaf_epsilon for t in trees]),
+            bounding_radius=np.array([t.bounding_radius for t in trees]),
+            extent=np.array([t.views.geometry.extent for t in trees]),
         )
 
     def __len__(self) -> int:
@@ -271,33 +285,41 @@ class TreeBank:
             keys = keys.astype(np.int64)
             if len(np.unique(keys)) != k:
                 raise InvalidArgumentError("keys must be distinct")
-        queries = (
-            _indices(tree_a, k, len(self), "tree_a"),
-            _indices(tree_b, k, len(self), "tree_b"),
-            check_rows(position_a, k, 3, "position_a"),
-            check_quaternions(orientation_a, k, "orientation_a"),
-            check_rows(position_b, k, 3, "position_b"),
-            check_quaternions(orientation_b, k, "orientation_b"),
+        queries = kb.PairQueries(
+            tree_a=_indices(tree_a, k, len(self), "tree_a"),
+            tree_b=_indices(tree_b, k, len(self), "tree_b"),
+            position_a=check_rows(position_a, k, 3, "position_a"),
+            orientation_a=check_quaternions(orientation_a, k, "orientation_a"),
+            position_b=check_rows(position_b, k, 3, "position_b"),
+            orientation_b=check_quaternions(orientation_b, k, "orientation_b"),
         )
         return self._run(queries, kernel, threads, cache, keys)
 
     def _run(self, queries: tuple, kernel: str, threads: int | None, cache=None, keys=None):
-        """The query arrays validated (see :meth:`find_contacts`)."""
-        k = len(queries[0])
+        """The query arrays validated (see :meth:`find_contacts`): a
+        :class:`~engine.kernels.collision.batch.PairQueries`, or its six arrays in order."""
+        queries = kb.PairQueries(*queries)
+        k = len(queries.tree_a)
         slots = None if cache is None else cache._slots(keys)
-        arrays = _NO_CACHE if cache is None else cache._arrays(slots)
-        coarse, leaf = query_parameters(kernel, self.dtype)
-        params = (coarse, leaf, kernel != "iterative", ULP[self.dtype], TINY)
+        lists = _NO_LISTS if cache is None else cache._lists(slots)
+        surrogate, leaf = query_parameters(kernel, self.dtype)
+        params = kb.QueryParams(
+            surrogate=surrogate,
+            leaf=leaf,
+            keep_all=kernel != "iterative",
+            ulp=ULP[self.dtype],
+            tiny=TINY,
+        )
         counts = np.zeros((k, kb.N_COUNTS), np.int64)
         levels = np.zeros((k, MAX_LEVELS), np.int64)
 
         def run(start: int, stop: int):
             return kb.batch_kernel(
-                self.bank,
-                self.meta,
+                self.nodes,
+                self.table,
                 queries,
                 params,
-                arrays,
+                lists,
                 start,
                 stop,
                 counts[start:stop],
@@ -315,10 +337,19 @@ class TreeBank:
                 for s, e in zip(bounds[:-1], bounds[1:], strict=True)
             ]
             parts = [f.result() for f in futures]
-        batch = _join(parts, counts, levels)
+        joined = _join(parts)
         if cache is not None:
-            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, _join_lists(parts))
-        return batch
+            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, joined)
+        return ContactBatch(
+            joined.pair_offsets,
+            joined.pairs,
+            joined.contact_offsets,
+            joined.points,
+            joined.normals,
+            joined.overlaps,
+            levels,
+            counts,
+        )
 
 
 def find_contacts_batch(
@@ -359,52 +390,38 @@ def find_contacts_batch(
     bank = TreeBank(trees, precision)
     # poses are validated and normalised already: passed on bit for bit, as the single
     # query passes them
-    arrays = (
-        np.array([index[id(item[0])] for item in queries], np.int64),
-        np.array([index[id(item[2])] for item in queries], np.int64),
-        np.array([item[1].position for item in queries]),
-        np.array([item[1].orientation for item in queries]),
-        np.array([item[3].position for item in queries]),
-        np.array([item[3].orientation for item in queries]),
+    arrays = kb.PairQueries(
+        tree_a=np.array([index[id(item[0])] for item in queries], np.int64),
+        tree_b=np.array([index[id(item[2])] for item in queries], np.int64),
+        position_a=np.array([item[1].position for item in queries]),
+        orientation_a=np.array([item[1].orientation for item in queries]),
+        position_b=np.array([item[3].position for item in queries]),
+        orientation_b=np.array([item[3].orientation for item in queries]),
     )
     batch = bank._run(arrays, kernel, threads)
     return [batch[q] for q in range(len(batch))]
 
 
-def _join(parts, counts, levels) -> ContactBatch:
-    """Concatenate the ragged results of consecutive chunks (one chunk: as it is)."""
+def _join(parts: list[kb.BatchResult]) -> kb.BatchResult:
+    """The results of consecutive chunks of queries as one (one chunk: as it is)."""
     if len(parts) == 1:
-        p = parts[0]
-        return ContactBatch(p[0], p[1], p[2], p[3], p[4], p[5], levels, counts)
-    pair_offsets, contact_offsets = [np.zeros(1, np.int64)], [np.zeros(1, np.int64)]
-    for part in parts:
-        pair_offsets.append(part[0][1:] + pair_offsets[-1][-1])
-        contact_offsets.append(part[2][1:] + contact_offsets[-1][-1])
-    return ContactBatch(
-        np.concatenate(pair_offsets),
-        np.concatenate([p[1] for p in parts]),
-        np.concatenate(contact_offsets),
-        np.concatenate([p[3] for p in parts]),
-        np.concatenate([p[4] for p in parts]),
-        np.concatenate([p[5] for p in parts]),
-        levels,
-        counts,
+        return parts[0]
+    return kb.BatchResult(
+        *(
+            _offsets([getattr(p, name) for p in parts])
+            if name.endswith("_offsets")
+            else np.concatenate([getattr(p, name) for p in parts])
+            for name in kb.BatchResult._fields
+        )
     )
 
 
-def _join_lists(parts) -> tuple:
-    """The chunks' lists and reference poses, concatenated (see :class:`PairCache`)."""
-    if len(parts) == 1:
-        return parts[0][6:10]
-    offsets = [np.zeros(1, np.int64)]
-    for part in parts:
-        offsets.append(part[6][1:] + offsets[-1][-1])
-    return (
-        np.concatenate(offsets),
-        np.concatenate([p[7] for p in parts]),
-        np.concatenate([p[8] for p in parts]),
-        np.concatenate([p[9] for p in parts]),
-    )
+def _offsets(chunks: list[np.ndarray]) -> np.ndarray:
+    """(k + 1,) int64 CSR offsets of consecutive chunks' offsets (each from 0)."""
+    out = [np.zeros(1, np.int64)]
+    for offsets in chunks:
+        out.append(offsets[1:] + out[-1][-1])
+    return np.concatenate(out)
 
 
 def _count(values, name: str) -> int:

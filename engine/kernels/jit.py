@@ -5,6 +5,10 @@ GIL released, numpy error model (no Python exceptions in the pair loop).
 Fast-math is limited to contraction (FMA) and reciprocal approximation: no
 ``nnan``/``ninf``, so comparisons stay IEEE-correct for degenerate input.
 
+``EXACT_JIT`` is ``JIT`` without fast-math, for arithmetic whose bits must not depend
+on the caller (poses, rigid moves): such a kernel is called, never inlined at Numba-IR
+level, so LLVM keeps its instructions free of contraction wherever it lands.
+
 ``INLINE`` is for per-pair helpers. Numba calls another compiled function
 through a symbol LLVM does not inline at that stage, and a call inside the pair
 loop stops the loop from vectorising; ``inline="always"`` splices the helper in
@@ -55,6 +59,7 @@ llvm.set_option("mrdem", "--memory-check-merge-threshold=4096")
 llvm.set_option("mrdem", "--vectorize-memory-check-threshold=4096")
 
 JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"contract", "arcp"}}
+EXACT_JIT = {**JIT, "fastmath": False}
 INLINE = {**JIT, "inline": "always"}
 
 

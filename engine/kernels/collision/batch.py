@@ -1,9 +1,12 @@
 """Many body pairs in one call: poses, margins and one :func:`query_kernel` per pair.
 
-Trees live in a *bank*: every node array of several trees concatenated, with each
-tree's node and face offsets. A tree's rows are a contiguous slice of the bank, and
-its child indices are local to that slice, so a query sees exactly the arrays a
-single query sees (the same compiled ``query_kernel`` runs both).
+Trees live in a *bank* (:class:`NodeBank`): every node array of several trees
+concatenated, with each tree's node and face offsets in a :class:`TreeTable`. A tree's
+rows are a contiguous slice of the bank, and its child indices are local to that slice,
+so a query sees exactly the arrays a single query sees (the same compiled
+``query_kernel`` runs both). The host passes the body pairs (:class:`PairQueries`), the
+search parameters (:class:`QueryParams`) and the kept leaf-pair lists
+(:class:`PairLists`) as named records too, and gets a :class:`BatchResult` back.
 
 The pose helpers are compiled without fast-math, so the single-pair host path,
 which calls them too, moves B by bit-identical rotations and shifts.
@@ -11,11 +14,13 @@ which calls them too, moves B by bit-identical rotations and shifts.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-from engine.kernels.collision.rigid import EXACT_JIT
 from engine.kernels.collision.traversal import listed_query, query_kernel
+from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.geometry.triangle_batch import (
     N_STATS,
     STAT_FALLBACKS,
@@ -23,7 +28,7 @@ from engine.kernels.geometry.triangle_batch import (
     STAT_PAIRS,
     STAT_SPHERES,
 )
-from engine.kernels.jit import JIT
+from engine.kernels.jit import EXACT_JIT, JIT
 
 MARGIN_ULPS = 256.0
 SQRT3 = np.sqrt(3.0)
@@ -33,23 +38,90 @@ COUNT_SPHERES, COUNT_LISTED = 5, 6
 N_COUNTS = 7
 
 
-@njit(**EXACT_JIT)
-def rotation_matrix(q):
-    """(3, 3) rotation of the unit quaternion ``q = (w, x, y, z)`` (4,) float64."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    r = np.empty((3, 3))
-    r[0, 0], r[0, 1], r[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    r[1, 0], r[1, 1], r[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    r[2, 0], r[2, 1], r[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-    return r
+class NodeBank(NamedTuple):
+    """Node arrays of several trees concatenated (``N`` nodes, ``F`` faces in all); the
+    rows of tree ``t`` are given by :class:`TreeTable`, child indices are local to them."""
+
+    coords: np.ndarray  # (N, 9) query precision: prepared triangles, row-major
+    frames: np.ndarray  # (N, 14) query precision: their frames
+    master_coords: np.ndarray  # (N, 9) float64: the same in float64 (B is moved from them)
+    master_frames: np.ndarray  # (N, 14) float64
+    epsilon: np.ndarray  # (N,) float64: ε of each node
+    face: np.ndarray  # (N,) int32: a leaf's face (local to its tree), −1 for a surrogate
+    first_child: np.ndarray  # (N,) int32: local row of a surrogate's first child
+    child_count: np.ndarray  # (N,) int32
+    face_normals: np.ndarray  # (F, 3) float64: unit face normals
+    spheres: np.ndarray  # (N, 4) float64: bounding sphere (centre, radius) of each node
+
+
+class TreeTable(NamedTuple):
+    """One entry per tree of a :class:`NodeBank` (``T`` trees)."""
+
+    node_offset: np.ndarray  # (T,) int64: first row of the tree's nodes
+    node_count: np.ndarray  # (T,) int64
+    face_offset: np.ndarray  # (T,) int64: first row of the tree's face normals
+    face_count: np.ndarray  # (T,) int64
+    leaf_epsilon: np.ndarray  # (T,) float64
+    bounding_radius: np.ndarray  # (T,) float64
+    extent: np.ndarray  # (T,) float64: largest body-frame coordinate (max-norm)
+
+
+class PairQueries(NamedTuple):
+    """``k`` body pairs: trees by bank position and poses (world frame)."""
+
+    tree_a: np.ndarray  # (k,) int64
+    tree_b: np.ndarray  # (k,) int64
+    position_a: np.ndarray  # (k, 3) float64
+    orientation_a: np.ndarray  # (k, 4) float64 unit quaternions (w, x, y, z)
+    position_b: np.ndarray  # (k, 3) float64
+    orientation_b: np.ndarray  # (k, 4) float64
+
+
+class QueryParams(NamedTuple):
+    """Search parameters shared by every query of a call (see :func:`query_kernel`)."""
+
+    surrogate: tuple  # (mode, iterations, rtol, one, band) for pairs with a surrogate
+    leaf: tuple  # the same for leaf pairs
+    keep_all: bool  # keep every leaf pair found, else only the certified ones (status 1)
+    ulp: float  # machine epsilon of the query precision (for the margin)
+    tiny: float  # gap below which two closest points coincide, per unit bounding radius
+
+
+class PairLists(NamedTuple):
+    """Leaf-pair lists kept between calls (``m`` entries, a Verlet list per body pair)."""
+
+    skin: float  # s relative to ε_a + ε_b; 0: no lists
+    slot: np.ndarray  # (k,) int64: entry of each query, −1 for none
+    rotations: np.ndarray  # (m, 3, 3) float64: reference pose of B relative to A
+    shifts: np.ndarray  # (m, 3) float64
+    offsets: np.ndarray  # (m + 1,) int64: entry e owns near[offsets[e]:offsets[e + 1]]
+    near: np.ndarray  # (L, 2) int64: leaf node pairs (local rows of A, of B)
+
+
+class BatchResult(NamedTuple):
+    """Ragged (CSR) results of queries ``start … stop − 1`` (``k = stop − start``)."""
+
+    pair_offsets: np.ndarray  # (k + 1,) int64
+    pairs: np.ndarray  # (p, 2) int64: (face of A, face of B)
+    contact_offsets: np.ndarray  # (k + 1,) int64
+    points: np.ndarray  # (c, 3) float64, world frame
+    normals: np.ndarray  # (c, 3) float64, unit, from A to B
+    overlaps: np.ndarray  # (c,) float64
+    near_offsets: np.ndarray  # (k + 1,) int64: the queries' new lists
+    near: np.ndarray  # (L, 2) int64
+    rotations: np.ndarray  # (k, 3, 3) float64: each list's reference pose
+    shifts: np.ndarray  # (k, 3) float64
 
 
 @njit(**EXACT_JIT)
 def relative_pose(position_a, orientation_a, position_b, orientation_b):
     """``(R_a, R, s)``: A's rotation and the map ``x ↦ R x + s`` from B's frame to A's
-    (``R = R_aᵀ R_b``, ``s = R_aᵀ (p_b − p_a)``)."""
-    ra = rotation_matrix(orientation_a)
-    rb = rotation_matrix(orientation_b)
+    (``R = R_aᵀ R_b``, ``s = R_aᵀ (p_b − p_a)``); positions (3,), orientations (4,)
+    unit quaternions, results (3, 3), (3, 3), (3,) float64."""
+    ra = np.empty((3, 3))
+    rb = np.empty((3, 3))
+    quaternion_rotation(orientation_a, ra)
+    quaternion_rotation(orientation_b, rb)
     rotation = np.empty((3, 3))
     shift = np.empty(3)
     d0 = position_b[0] - position_a[0]
@@ -72,42 +144,27 @@ def query_margin(extent_a, extent_b, shift, ulp):
 
 
 @njit(**JIT)
-def batch_kernel(bank, meta, queries, params, cache, start, stop, counts, levels):
-    """Contacts of body pairs ``start ≤ q < stop``; returns ragged results.
+def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, levels):
+    """Contacts of body pairs ``start ≤ q < stop``; returns a :class:`BatchResult`.
 
-    ``bank = (coords (N, 9), frames (N, 14)`` in the query precision, ``master
-    coords, master frames`` float64, ``epsilon (N,)`` float64, ``face, first_child,
-    child_count (N,)`` int32, ``normals (F, 3)`` float64 unit face normals, ``spheres
-    (N, 4)`` float64 bounding spheres);
-    ``meta = (node offset, node count, face offset, face count (T,) int64, leaf ε,
-    bounding radius, extent (T,) float64)`` per tree; ``queries = (tree_a, tree_b
-    (k,) int64, position_a (k, 3), orientation_a (k, 4), position_b, orientation_b)``;
-    ``params = (surrogate params, leaf params, keep_all, ulp, tiny)`` (see
-    :func:`query_kernel`; ``tiny`` relative to the larger bounding radius).
+    ``bank`` (:class:`NodeBank`) holds the trees' nodes, ``trees`` (:class:`TreeTable`)
+    where each tree's rows are, ``queries`` (:class:`PairQueries`) the ``k`` body pairs
+    and ``params`` (:class:`QueryParams`) the search parameters (see
+    :func:`~engine.kernels.collision.traversal.query_kernel`).
 
-    ``cache = (skin, slot (k,) int64, rotation (m, 3, 3), shift (m, 3), offsets
-    (m + 1,) int64, near (L, 2) int64)``: with ``skin > 0`` each query keeps a list of
-    its leaf pairs within ε_a + ε_b + s, s = skin·(ε_a + ε_b) (leaf ε), found at a
-    reference pose of B relative to A. Query q uses the list of entry ``slot[q]``
-    (−1: none) instead of a traversal while B's points have moved by less than s
-    relative to A since its reference pose (:func:`motion_bound`, plus the query's
-    margin); else it traverses with every ε grown by s/2 and starts a new list.
+    ``lists`` (:class:`PairLists`): with ``skin > 0`` each query keeps a list of its
+    leaf pairs within ε_a + ε_b + s, s = skin·(ε_a + ε_b) (leaf ε), found at a reference
+    pose of B relative to A. Query q uses the list of entry ``slot[q]`` (−1: none)
+    instead of a traversal while B's points have moved by less than s relative to A
+    since its reference pose (:func:`motion_bound`, plus the query's margin); else it
+    traverses with every ε grown by s/2 and starts a new list.
 
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
-    (pairs evaluated per level). Returns ``(pair_offsets, pairs, contact_offsets,
-    points, normals, overlaps, near_offsets, near, rotations, shifts)``: query
-    ``start + t`` owns rows ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs`` and
-    likewise for contacts and its new list (empty without a skin, and for a query that
-    used its cached list: that list stays valid as it is), whose reference pose is
-    ``rotations[t], shifts[t]``.
+    int64 (pairs evaluated per level). In the result, query ``start + t`` owns rows
+    ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs``, likewise for contacts and its
+    new list (empty without a skin, and for a query that used its cached list: that
+    list stays valid as it is), whose reference pose is ``rotations[t], shifts[t]``.
     """
-    coords, frames, master_coords, master_frames, epsilon, face, first, count, normals, spheres = (
-        bank
-    )
-    node_offset, node_count, face_offset, face_count, leaf_eps, radius, extent = meta
-    tree_a, tree_b, position_a, orientation_a, position_b, orientation_b = queries
-    coarse, leaf, keep_all, ulp, tiny = params
-    skin, slot, cached_rotation, cached_shift, cached_offsets, cached_near = cache
     k = stop - start
     pair_offsets = np.zeros(k + 1, np.int64)
     contact_offsets = np.zeros(k + 1, np.int64)
@@ -122,52 +179,56 @@ def batch_kernel(bank, meta, queries, params, cache, start, stop, counts, levels
     stats = np.zeros(N_STATS, np.int64)
     for t in range(k):
         q = start + t
-        ta, tb = tree_a[q], tree_b[q]
-        a0, a1 = node_offset[ta], node_offset[ta] + node_count[ta]
-        b0, b1 = node_offset[tb], node_offset[tb] + node_count[tb]
-        body_a = (
-            coords[a0:a1],
-            frames[a0:a1],
-            epsilon[a0:a1],
-            face[a0:a1],
-            first[a0:a1],
-            count[a0:a1],
-            spheres[a0:a1],
+        ta, tb = queries.tree_a[q], queries.tree_b[q]
+        a0, a1 = trees.node_offset[ta], trees.node_offset[ta] + trees.node_count[ta]
+        b0, b1 = trees.node_offset[tb], trees.node_offset[tb] + trees.node_count[tb]
+        body_a = (  # query_kernel's body layout; A in the query precision
+            bank.coords[a0:a1],
+            bank.frames[a0:a1],
+            bank.epsilon[a0:a1],
+            bank.face[a0:a1],
+            bank.first_child[a0:a1],
+            bank.child_count[a0:a1],
+            bank.spheres[a0:a1],
         )
-        body_b = (
-            master_coords[b0:b1],
-            master_frames[b0:b1],
-            epsilon[b0:b1],
-            face[b0:b1],
-            first[b0:b1],
-            count[b0:b1],
-            spheres[b0:b1],
+        body_b = (  # B from float64, moved into A's frame by the query
+            bank.master_coords[b0:b1],
+            bank.master_frames[b0:b1],
+            bank.epsilon[b0:b1],
+            bank.face[b0:b1],
+            bank.first_child[b0:b1],
+            bank.child_count[b0:b1],
+            bank.spheres[b0:b1],
         )
+        position_a = queries.position_a[q]
         rot_a, rotation, shift = relative_pose(
-            position_a[q], orientation_a[q], position_b[q], orientation_b[q]
+            position_a, queries.orientation_a[q], queries.position_b[q], queries.orientation_b[q]
         )
-        margin = query_margin(extent[ta], extent[tb], shift, ulp)
-        ea, eb = leaf_eps[ta], leaf_eps[tb]
-        setup = (ea, eb, tiny * max(radius[ta], radius[tb]), min(ea, eb), rot_a, position_a[q])
-        f0 = face_offset[ta]
-        contact = (face_count[tb], keep_all, normals[f0 : f0 + face_count[ta]], setup)
+        extent_b = trees.extent[tb]
+        margin = query_margin(trees.extent[ta], extent_b, shift, params.ulp)
+        ea, eb = trees.leaf_epsilon[ta], trees.leaf_epsilon[tb]
+        tiny = params.tiny * max(trees.bounding_radius[ta], trees.bounding_radius[tb])
+        setup = (ea, eb, tiny, min(ea, eb), rot_a, position_a)
+        f0, f1 = trees.face_offset[ta], trees.face_offset[ta] + trees.face_count[ta]
+        contact = (trees.face_count[tb], params.keep_all, bank.face_normals[f0:f1], setup)
         stats[:] = 0
+        skin = lists.skin
         reach = skin * (ea + eb)
-        e = slot[q]
+        e = lists.slot[q]
         listed = (
             skin > 0.0
             and e >= 0
-            and motion_bound(cached_rotation[e], cached_shift[e], rotation, shift, extent[tb])
+            and motion_bound(lists.rotations[e], lists.shifts[e], rotation, shift, extent_b)
             + margin
             < reach
         )
         if listed:
-            near = cached_near[cached_offsets[e] : cached_offsets[e + 1]]
+            near = lists.near[lists.offsets[e] : lists.offsets[e + 1]]
             result = listed_query(
-                body_a, body_b, (rotation, shift), margin, near, leaf, contact, stats
+                body_a, body_b, (rotation, shift), margin, near, params.leaf, contact, stats
             )
             depth, unfoldings = 0, 0
-            rotations[t], shifts[t] = cached_rotation[e], cached_shift[e]
+            rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
         else:
             inflate = 0.5 * reach if skin > 0.0 else 0.0
             depth, unfoldings, result, near = query_kernel(
@@ -176,8 +237,8 @@ def batch_kernel(bank, meta, queries, params, cache, start, stop, counts, levels
                 (rotation, shift),
                 margin,
                 inflate,
-                coarse,
-                leaf,
+                params.surrogate,
+                params.leaf,
                 contact,
                 stats,
                 levels[t],
@@ -208,7 +269,7 @@ def batch_kernel(bank, meta, queries, params, cache, start, stop, counts, levels
         counts[t, COUNT_SPHERES] = stats[STAT_SPHERES]
         counts[t, COUNT_LISTED] = 1 if listed else 0
     n_pairs, n_contacts, n_near = pair_offsets[k], contact_offsets[k], near_offsets[k]
-    return (
+    return BatchResult(
         pair_offsets,
         pairs[:n_pairs],
         contact_offsets,

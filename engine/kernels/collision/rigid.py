@@ -10,9 +10,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from engine.kernels.jit import JIT
-
-EXACT_JIT = {**JIT, "fastmath": False}
+from engine.kernels.jit import EXACT_JIT, JIT
 
 
 @njit(**EXACT_JIT)

@@ -6,11 +6,15 @@ safety margin, the front of node pairs is traversed, and the leaf pairs found
 become merged contacts.
 
 The front is a list of node pairs, starting at the two roots. Each level is split
-into leaf–leaf pairs, streamed through :func:`~engine.kernels.geometry.triangle_batch.listed_kernel`
-with the leaf parameters (their contacts are final), and pairs with a surrogate,
-streamed with the surrogate parameters (iterative, or exact): a pair reported in
-contact or not converged is unfolded — the node with the larger ε is replaced by
-its children (a leaf is never unfolded) — into the next level's front.
+(:func:`_leaf_pair`) into leaf–leaf pairs, streamed through
+:func:`~engine.kernels.geometry.triangle_batch.listed_kernel` with the leaf parameters
+(their contacts are final), and pairs with a surrogate, streamed with the surrogate
+parameters (iterative, or exact): a pair reported in contact or not converged is
+unfolded into the next level's front — *both* nodes unfold at once, each surrogate
+replaced by its children and a leaf standing for itself (:func:`_children`), so the
+pair becomes every pair of the two sides, one level per pair (pairs whose bounding
+spheres are apart are dropped). :func:`front_kernel` evaluates one such front for the
+multiscale step, whose host unfolds the hits by the same rule.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from engine.kernels.geometry.triangle_batch import (
     listed_workspace,
     result_buffers,
 )
-from engine.kernels.jit import INLINE, JIT
+from engine.kernels.jit import INLINE, JIT, select
 
 
 @njit(**JIT)
@@ -109,7 +113,7 @@ def query_kernel(
         nc = ZERO
         for t in range(m):
             i, j = front[t, 0], front[t, 1]
-            if face_a[i] >= 0 and face_b[j] >= 0:
+            if _leaf_pair(face_a, i, face_b, j):
                 finest[nf, 0], finest[nf, 1] = i, j
                 nf += 1
             else:
@@ -125,16 +129,17 @@ def query_kernel(
         unfoldings += h
         size = ZERO
         for k in range(h):
-            i, j = hi[k], hj[k]
-            size += max(count_a[i], 1) * max(count_b[j], 1)
+            a0, a1 = _children(face_a, first_a, count_a, hi[k])
+            b0, b1 = _children(face_b, first_b, count_b, hj[k])
+            size += (a1 - a0) * (b1 - b0)
         front = np.empty((size, 2), np.int64)
         r = ZERO
         new = ZERO
         for k in range(h):
             i, j = hi[k], hj[k]
-            # unfold every surrogate of the pair (a leaf stays): one level per pair
-            a0, a1 = (first_a[i], first_a[i] + count_a[i]) if face_a[i] < 0 else (i, i + 1)
-            b0, b1 = (first_b[j], first_b[j] + count_b[j]) if face_b[j] < 0 else (j, j + 1)
+            # both nodes unfold (a leaf stands for itself): every pair of the two sides
+            a0, a1 = _children(face_a, first_a, count_a, i)
+            b0, b1 = _children(face_b, first_b, count_b, j)
             for ca in range(a0, a1):
                 if b1 - b0 > 1 and _apart(
                     spheres_a, ca, spheres_b, centres_b, centred, j, rotation, shift, reach
@@ -231,7 +236,7 @@ def front_kernel(body_a, body_b, pose, margin, nodes, coarse_params, leaf_params
             moved[j] = True
             to_move[new] = j
             new += 1
-        if face_a[i] >= 0 and face_b[j] >= 0:
+        if _leaf_pair(face_a, i, face_b, j):
             leaves[nl, 0], leaves[nl, 1] = i, j
             entry_of_leaf[nl] = t
             nl += 1
@@ -303,6 +308,25 @@ def _contacts(found, n, face_a, face_b, contact):
         found, n, face_a, face_b, n_faces_b, keep_all, normals_a, setup, result
     )
     return pairs[:count], points[:k], normals[:k], overlaps[:k]
+
+
+@njit(**INLINE)
+def _leaf_pair(face_a, i, face_b, j):
+    """A's node ``i`` and B's node ``j`` are both leaves (``face (N,)`` int32, −1 for a
+    surrogate): their contacts are final, they never unfold."""
+    return (face_a[i] >= 0) & (face_b[j] >= 0)
+
+
+@njit(**INLINE)
+def _children(face, first_child, child_count, i):
+    """``(c0, c1)`` int64: node ``i`` unfolds into the nodes ``c0 … c1 − 1`` — its
+    children if it is a surrogate (``face[i] < 0``), itself if it is a leaf.
+    ``face``, ``first_child``, ``child_count`` are a tree's (N,) int32 arrays."""
+    leaf = face[i] >= 0
+    first = np.int64(first_child[i])
+    return select(leaf, np.int64(i), first), select(
+        leaf, np.int64(i) + 1, first + np.int64(child_count[i])
+    )
 
 
 @njit(**INLINE)

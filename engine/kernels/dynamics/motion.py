@@ -13,14 +13,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.jit import JIT
 
 
 @njit(**JIT)
 def rotation_matrices(orientations, out):
-    """``out (n, 3, 3)``: rotation of each unit quaternion ``orientations (n, 4)``."""
+    """``out (n, 3, 3)`` float64: rotation of each unit quaternion ``orientations (n, 4)``
+    float64 (:func:`~engine.kernels.geometry.rotation.quaternion_rotation`)."""
     for b in range(orientations.shape[0]):
-        _rotation(orientations[b], out[b])
+        quaternion_rotation(orientations[b], out[b])
 
 
 @njit(**JIT)
@@ -51,7 +53,7 @@ def advance(start, force, torque, inverse_mass, inertia_body, inverse_inertia, d
         for c in range(3):
             v1[b, c] = v0[b, c] + dt * force[b, c] * inverse_mass[b]
             x1[b, c] = x0[b, c] + dt * v1[b, c]
-        _rotation(q0[b], rot)
+        quaternion_rotation(q0[b], rot)
         _conjugate(rot, inverse_inertia[b], inv_world)
         _conjugate(rot, inertia_body[b], inertia)
         for i in range(3):
@@ -60,31 +62,11 @@ def advance(start, force, torque, inverse_mass, inertia_body, inverse_inertia, d
                 momentum[i] += inertia[i, j] * w0[b, j]
         _times(inv_world, momentum, omega)
         _turn(q0[b], omega, dt, q1[b])
-        _rotation(q1[b], rot)
+        quaternion_rotation(q1[b], rot)
         _conjugate(rot, inverse_inertia[b], inv_world)
         _times(inv_world, momentum, omega)
         for c in range(3):
             w1[b, c] = omega[c]
-
-
-@njit(**JIT)
-def _rotation(q, out):
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    out[0, 0], out[0, 1], out[0, 2] = (
-        1 - 2 * (y * y + z * z),
-        2 * (x * y - w * z),
-        2 * (x * z + w * y),
-    )
-    out[1, 0], out[1, 1], out[1, 2] = (
-        2 * (x * y + w * z),
-        1 - 2 * (x * x + z * z),
-        2 * (y * z - w * x),
-    )
-    out[2, 0], out[2, 1], out[2, 2] = (
-        2 * (x * z - w * y),
-        2 * (y * z + w * x),
-        1 - 2 * (x * x + y * y),
-    )
 
 
 @njit(**JIT)
