@@ -47,7 +47,7 @@ sys.path.insert(0, str(ROOT))
 
 import engine  # noqa: E402
 from engine import scenarios  # noqa: E402
-from engine.scene import SEARCH_COUNTERS  # noqa: E402
+from engine.collision.configuration import SEARCH_COUNTERS  # noqa: E402
 from engine.trees.tree import _ARRAYS as TREE_ARRAYS  # noqa: E402
 
 OUT = ROOT / "bench-results"

@@ -39,7 +39,6 @@ import engine  # noqa: E402
 from engine import Pose, build_tree, find_contacts, scenarios, shapes  # noqa: E402
 from engine import scene as scene_module  # noqa: E402
 from engine.collision.broadphase import overlapping_pairs  # noqa: E402
-from engine.collision.contacts import spheres  # noqa: E402
 from engine.geometry.distance import triangle_distances  # noqa: E402
 
 OUT = ROOT / "bench-results"
@@ -140,7 +139,7 @@ def replay(ta, pa, tb, pb, skip: int | None) -> dict:
     """The search of :func:`engine.find_contacts` level by level (bounding spheres, then
     the exact kernel on surrogate pairs; both nodes unfold), with the pairs at front
     level ``skip`` unfolded untested. Counts per level."""
-    sa, sb = spheres(ta).copy(), spheres(tb).copy()
+    sa, sb = ta.views.spheres.copy(), tb.views.spheres.copy()
     sa[:, :3], sb[:, :3] = pa.apply(sa[:, :3]), pb.apply(sb[:, :3])
     tri_a = pa.apply(ta.triangles.reshape(-1, 3)).reshape(-1, 3, 3)
     tri_b = pb.apply(tb.triangles.reshape(-1, 3)).reshape(-1, 3, 3)

@@ -43,8 +43,11 @@ from engine.arguments import (
 )
 from engine.collision.batch import PairCache, TreeBank
 from engine.collision.broadphase import overlapping_pairs
-from engine.collision.configuration import SEARCH_COUNTERS, Contacts
-from engine.collision.contacts import find_contacts
+from engine.collision.configuration import (
+    Contacts,
+    batched_contacts,
+    flat_contacts,
+)
 from engine.collision.multiscale import MultiscaleSearch
 from engine.dynamics import picard
 from engine.dynamics.bodies import BodyCache, body_terms
@@ -57,7 +60,6 @@ from engine.geometry.distance import DEFAULT_PRECISION
 from engine.geometry.mesh import Mesh
 from engine.geometry.pose import Pose
 from engine.geometry.shapes import plane
-from engine.kernels.collision import batch as kb
 from engine.kernels.dynamics import motion as kd
 from engine.trees.halos import DEFAULT_RELATIVE_EPSILON, SceneTrees, check_epsilon
 from engine.trees.tree import SurrogateTree
@@ -460,69 +462,23 @@ class Scene:
         return cached[1]
 
     def contacts(self, positions, orientations, hierarchy: bool = True) -> Contacts:
-        """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``."""
+        """Contacts of the configuration ``positions (n, 3)``, ``orientations (n, 4)``: the
+        broad phase's candidate pairs searched in one batch (multiresolution, through the
+        pair cache) or, with ``hierarchy=False``, by the flat search pair by pair."""
         origins, pairs = self.configuration(positions, orientations)
-        counters = dict.fromkeys(SEARCH_COUNTERS, 0)
         if hierarchy:
-            # the scene's own arrays: the bank's checks are skipped (pairs are distinct by
-            # construction), and the orientations are normalised as they would normalise them
-            norms = np.linalg.norm(orientations, axis=1)
-            if not (np.abs(norms - 1.0) <= 1e-6).all():  # NaN fails too
-                bad = int(np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6))[0])
-                raise InvalidArgumentError(
-                    f"orientations[{bad}] must be a unit quaternion; its norm is {norms[bad]:.6g}"
-                )
-            unit = orientations / norms[:, None]
-            a, b = pairs[:, 0], pairs[:, 1]
-            queries = (
-                self.tree_index[a],
-                self.tree_index[b],
-                origins[a],
-                unit[a],
-                origins[b],
-                unit[b],
+            return batched_contacts(
+                self.bank,
+                self.tree_index,
+                pairs,
+                origins,
+                orientations,
+                self.kernel,
+                self.threads,
+                self.pair_cache,
             )
-            keys = a * len(self) + b
-            batch = self.bank._run(queries, self.kernel, self.threads, self.pair_cache, keys)
-            totals = batch.counts.sum(axis=0)
-            for name, column in (
-                ("comparisons", kb.COUNT_COMPARISONS),
-                ("iterative", kb.COUNT_ITERATIVE),
-                ("fallbacks", kb.COUNT_FALLBACKS),
-                ("sphere_pruned", kb.COUNT_SPHERES),
-                ("unfoldings", kb.COUNT_UNFOLDINGS),
-                ("listed", kb.COUNT_LISTED),
-            ):
-                counters[name] = int(totals[column])
-            counters["triangle_pairs"] = len(batch.pairs)
-            return Contacts(
-                pairs, batch.contact_offsets, batch.points, batch.normals, batch.overlaps, counters
-            )
-        offsets, points, normals, overlaps, triangle_pairs = [0], [], [], [], 0
-        for a, b in pairs:
-            res = find_contacts(
-                self.trees[self.tree_index[a]],
-                Pose(origins[a], orientations[a]),
-                self.trees[self.tree_index[b]],
-                Pose(origins[b], orientations[b]),
-                kernel=self.kernel,
-                hierarchy=False,
-                precision=self.precision,
-            )
-            offsets.append(offsets[-1] + len(res.points))
-            points.append(res.points), normals.append(res.normals), overlaps.append(res.overlaps)
-            counters["comparisons"] += res.stats.comparisons
-            counters["iterative"] += res.stats.iterative
-            counters["fallbacks"] += res.stats.fallbacks
-            triangle_pairs += len(res.pairs)
-        counters["triangle_pairs"] = triangle_pairs
-        return Contacts(
-            pairs,
-            np.array(offsets, np.int64),
-            np.concatenate(points) if points else np.zeros((0, 3)),
-            np.concatenate(normals) if normals else np.zeros((0, 3)),
-            np.concatenate(overlaps) if overlaps else np.zeros(0),
-            counters,
+        return flat_contacts(
+            self.trees, self.tree_index, pairs, origins, orientations, self.kernel, self.precision
         )
 
     @property

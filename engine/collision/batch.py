@@ -19,14 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine.arguments import check_kernel, check_precision, check_quaternions, check_rows
-from engine.collision.contacts import (
-    TINY,
-    ULP,
-    ContactSet,
-    ContactStats,
-    find_contacts,
-    query_parameters,
-)
+from engine.collision.contacts import ContactSet, ContactStats, find_contacts
+from engine.collision.query import TINY, ULP, query_parameters
 from engine.errors import InvalidArgumentError
 from engine.geometry.distance import DEFAULT_PRECISION
 from engine.geometry.pose import Pose
@@ -293,10 +287,12 @@ class TreeBank:
             position_b=check_rows(position_b, k, 3, "position_b"),
             orientation_b=check_quaternions(orientation_b, k, "orientation_b"),
         )
-        return self._run(queries, kernel, threads, cache, keys)
+        return self.run(queries, kernel, threads, cache, keys)
 
-    def _run(self, queries: tuple, kernel: str, threads: int | None, cache=None, keys=None):
-        """The query arrays validated (see :meth:`find_contacts`): a
+    def run(self, queries: tuple, kernel: str, threads: int | None, cache=None, keys=None):
+        """Run queries that are already valid (:meth:`find_contacts` checks them; the
+        scene's own arrays are valid by construction), optionally through a
+        :class:`PairCache` under ``keys (k,) int64``. ``queries``: a
         :class:`~engine.kernels.collision.batch.PairQueries`, or its six arrays in order."""
         queries = kb.PairQueries(*queries)
         k = len(queries.tree_a)
@@ -313,7 +309,7 @@ class TreeBank:
         counts = np.zeros((k, kb.N_COUNTS), np.int64)
         levels = np.zeros((k, MAX_LEVELS), np.int64)
 
-        def run(start: int, stop: int):
+        def chunk(start: int, stop: int):
             return kb.batch_kernel(
                 self.nodes,
                 self.table,
@@ -328,12 +324,12 @@ class TreeBank:
 
         threads = threads or _CPUS
         if threads == 1 or k < 2 * _PAIRS_PER_TASK:
-            parts = [run(0, k)]
+            parts = [chunk(0, k)]
         else:
             bounds = np.linspace(0, k, min(k // _PAIRS_PER_TASK, 4 * threads) + 1).astype(int)
             pool = worker_pool(int(threads))
             futures = [
-                pool.submit(run, int(s), int(e))
+                pool.submit(chunk, int(s), int(e))
                 for s, e in zip(bounds[:-1], bounds[1:], strict=True)
             ]
             parts = [f.result() for f in futures]
@@ -398,7 +394,7 @@ def find_contacts_batch(
         position_b=np.array([item[3].position for item in queries]),
         orientation_b=np.array([item[3].orientation for item in queries]),
     )
-    batch = bank._run(arrays, kernel, threads)
+    batch = bank.run(arrays, kernel, threads)
     return [batch[q] for q in range(len(batch))]
 
 

@@ -1,6 +1,9 @@
-"""Contacts of a scene configuration: the record the contact searches hand the force kernel.
+"""Contacts of a scene configuration: the record the contact searches hand the force kernel,
+and the two fresh searches of a configuration's candidate body pairs.
 
-:meth:`engine.scene.Scene.contacts` (a fresh flat or multiresolution search) and
+:func:`batched_contacts` (multiresolution, every pair in one batched call through the pair
+cache) and :func:`flat_contacts` (the flat search, pair by pair), which
+:meth:`engine.scene.Scene.contacts` chooses between, and
 :class:`~engine.collision.multiscale.MultiscaleSearch` (fronts kept between calls) both
 return a :class:`Contacts`; :mod:`engine.dynamics.picard` evaluates forces from it and sums
 its :data:`SEARCH_COUNTERS` into the step's statistics.
@@ -12,7 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SEARCH_COUNTERS", "Contacts"]
+from engine.collision.batch import PairCache, TreeBank
+from engine.collision.contacts import find_contacts
+from engine.errors import InvalidArgumentError
+from engine.geometry.pose import Pose
+from engine.kernels.collision import batch as kb
+
+__all__ = ["SEARCH_COUNTERS", "Contacts", "batched_contacts", "flat_contacts"]
 
 SEARCH_COUNTERS = (
     "comparisons",
@@ -43,3 +52,89 @@ class Contacts:
     normals: np.ndarray
     overlaps: np.ndarray
     counters: dict
+
+
+_BATCH_COUNTERS = (
+    ("comparisons", kb.COUNT_COMPARISONS),
+    ("iterative", kb.COUNT_ITERATIVE),
+    ("fallbacks", kb.COUNT_FALLBACKS),
+    ("sphere_pruned", kb.COUNT_SPHERES),
+    ("unfoldings", kb.COUNT_UNFOLDINGS),
+    ("listed", kb.COUNT_LISTED),
+)
+
+
+def batched_contacts(
+    bank: TreeBank,
+    tree_index: np.ndarray,
+    pairs: np.ndarray,
+    origins: np.ndarray,
+    orientations: np.ndarray,
+    kernel: str,
+    threads: int | None,
+    cache: PairCache | None,
+) -> Contacts:
+    """The multiresolution contacts of body ``pairs (k, 2)`` int64 (a < b, distinct) in one
+    batched call: body i is tree ``tree_index[i]`` of ``bank`` with its mesh-frame origin at
+    ``origins (n, 3)`` float64 and orientation ``orientations (n, 4)`` (unit within 1e-6,
+    renormalised here as the bank would); pair (a, b) is cached under ``a·n + b``."""
+    norms = np.linalg.norm(orientations, axis=1)
+    if not (np.abs(norms - 1.0) <= 1e-6).all():  # NaN fails too
+        bad = int(np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6))[0])
+        raise InvalidArgumentError(
+            f"orientations[{bad}] must be a unit quaternion; its norm is {norms[bad]:.6g}"
+        )
+    unit = orientations / norms[:, None]
+    a, b = pairs[:, 0], pairs[:, 1]
+    queries = kb.PairQueries(tree_index[a], tree_index[b], origins[a], unit[a], origins[b], unit[b])
+    keys = a * len(tree_index) + b
+    batch = bank.run(queries, kernel, threads, cache, keys)
+    totals = batch.counts.sum(axis=0)
+    counters = dict.fromkeys(SEARCH_COUNTERS, 0)
+    for name, column in _BATCH_COUNTERS:
+        counters[name] = int(totals[column])
+    counters["triangle_pairs"] = len(batch.pairs)
+    return Contacts(
+        pairs, batch.contact_offsets, batch.points, batch.normals, batch.overlaps, counters
+    )
+
+
+def flat_contacts(
+    trees: list,
+    tree_index: np.ndarray,
+    pairs: np.ndarray,
+    origins: np.ndarray,
+    orientations: np.ndarray,
+    kernel: str,
+    precision: str,
+) -> Contacts:
+    """The flat search's contacts of body ``pairs (k, 2)``, one :func:`find_contacts` call per
+    pair (``trees``: the SurrogateTrees ``tree_index (n,)`` points into; other arguments as
+    :func:`batched_contacts`)."""
+    counters = dict.fromkeys(SEARCH_COUNTERS, 0)
+    offsets, points, normals, overlaps, triangle_pairs = [0], [], [], [], 0
+    for a, b in pairs:
+        res = find_contacts(
+            trees[tree_index[a]],
+            Pose(origins[a], orientations[a]),
+            trees[tree_index[b]],
+            Pose(origins[b], orientations[b]),
+            kernel=kernel,
+            hierarchy=False,
+            precision=precision,
+        )
+        offsets.append(offsets[-1] + len(res.points))
+        points.append(res.points), normals.append(res.normals), overlaps.append(res.overlaps)
+        counters["comparisons"] += res.stats.comparisons
+        counters["iterative"] += res.stats.iterative
+        counters["fallbacks"] += res.stats.fallbacks
+        triangle_pairs += len(res.pairs)
+    counters["triangle_pairs"] = triangle_pairs
+    return Contacts(
+        pairs,
+        np.array(offsets, np.int64),
+        np.concatenate(points) if points else np.zeros((0, 3)),
+        np.concatenate(normals) if normals else np.zeros((0, 3)),
+        np.concatenate(overlaps) if overlaps else np.zeros(0),
+        counters,
+    )

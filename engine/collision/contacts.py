@@ -41,8 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine.arguments import check_kernel, check_precision
-from engine.collision.query import (  # TINY: batch.py imports it from here until it moves
-    TINY,  # noqa: F401
+from engine.collision.query import (
     ULP,
     check_posed_pair,
     contact_constants,

@@ -1,4 +1,4 @@
-"""Surrogate-tree construction kernels (host side: :func:`engine.trees.tree.build_tree`).
+"""Surrogate-tree construction kernels (host side: :func:`engine.trees.build.build_tree`).
 
 The build works a whole tree level per call, never Python work per node:
 

@@ -262,11 +262,6 @@ def test_the_smallest_moments_are_kept_until_inertia_or_fixed_is_replaced():
     assert grown.shape == (5,) and grown[4] == pytest.approx(0.2, rel=1e-12)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bug: BodyCache.smallest_inertia is keyed on the identity of scene.fixed, so a "
-    "body released in place (scene.fixed[i] = False) keeps the NaN of its fixed time",
-)
 def test_the_smallest_moments_follow_fixed_flags_edited_in_place():
     scene = small_scene()
     scene.fixed[1] = True  # in place, as tests/engine/test_scene.py edits it
