@@ -1,5 +1,5 @@
 """The client's side of the wire format: request bodies as msgpack (numpy arrays as typed
-binary, :mod:`common.codec`, the one array codec the service uses too) or JSON, and answers
+binary, :mod:`mrdem_common.codec`, the one array codec the service uses too) or JSON, and answers
 read back. Imports neither engine nor service."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from common.codec import (
+from mrdem_common.codec import (
     JSON,
     MSGPACK,
     NDARRAY_EXT,

@@ -10,7 +10,7 @@ is given. Writes into ``--out``:
   a time series for ParaView (legacy VTK polydata, one file per frame).
 
 Imports neither engine nor service: the service runs as a separate process
-(:mod:`common.serving`).
+(:mod:`mrdem_common.serving`).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from common.rotation import rotation_matrix
-from common.serving import ServiceProcess, ServiceStartError
+from mrdem_common.rotation import rotation_matrix
+from mrdem_common.serving import ServiceProcess, ServiceStartError
 
 from .sync import Client
 

@@ -1,7 +1,7 @@
 """Request and response bodies: JSON, or msgpack with numpy arrays as typed binary.
 
 msgpack arrays travel as extension type :data:`NDARRAY_EXT` holding ``[dtype, shape,
-data]``, read and written by :mod:`common.codec` (the one implementation, shared with the
+data]``, read and written by :mod:`mrdem_common.codec` (the one implementation, shared with the
 clients): little-endian or byte-order-free bool, integer, unsigned or float dtypes of at most
 8 bytes, nothing else, so decoding never executes code (no pickle). This module adds the HTTP
 parts: content negotiation, 400/406/413/415 problems, the body-size limit. In JSON, arrays
@@ -17,7 +17,7 @@ import msgpack
 from fastapi import Request
 from fastapi.responses import Response
 
-from common.codec import JSON, MSGPACK, NDARRAY_EXT, CodecError, packb, plain, unpackb
+from mrdem_common.codec import JSON, MSGPACK, NDARRAY_EXT, CodecError, packb, plain, unpackb
 
 from .errors import BadRequest, NotAcceptable, PayloadTooLarge, UnsupportedMediaType
 
@@ -51,7 +51,7 @@ def decode(body: bytes, content_type: str | None) -> Any:
 
 
 def encode_msgpack(payload: Any) -> bytes:
-    """``payload`` as msgpack, arrays as typed binary (:func:`common.codec.packb`)."""
+    """``payload`` as msgpack, arrays as typed binary (:func:`mrdem_common.codec.packb`)."""
     return packb(payload)
 
 

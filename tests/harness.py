@@ -1,6 +1,6 @@
 """Test harness for the service and the clients: a real uvicorn process of the service on
 a free loopback port with its store in a temporary directory (kernels load from the shared
-Numba cache; :mod:`common.serving` starts it), and helpers for msgpack bodies and RFC 9457
+Numba cache; :mod:`mrdem_common.serving` starts it), and helpers for msgpack bodies and RFC 9457
 problems."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from common import serving
+from mrdem_common import serving
 from service.codecs import MSGPACK, decode, encode_msgpack
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,7 +21,7 @@ READY_TIMEOUT = 600.0  # a fresh kernel cache compiles everything first
 class ServiceProcess(serving.ServiceProcess):
     """``python -m service`` from the repository root with ``MRDEM_*`` ``settings`` (by field
     name: ``build_wait="0"``), its log next to ``data_dir`` (``log_path``); ``start`` waits
-    for /readyz and raises :class:`common.serving.ServiceStartError` with the log's tail."""
+    for /readyz and raises :class:`mrdem_common.serving.ServiceStartError` with the log's tail."""
 
     def __init__(self, data_dir: Path, **settings: str) -> None:
         super().__init__(

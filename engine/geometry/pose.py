@@ -7,8 +7,8 @@ from functools import cached_property
 
 import numpy as np
 
-from common.rotation import rotation_matrix
 from engine.errors import InvalidArgumentError
+from mrdem_common.rotation import rotation_matrix
 
 __all__ = ["Pose"]
 
@@ -48,7 +48,8 @@ class Pose:
 
     @cached_property
     def rotation(self) -> np.ndarray:
-        """(3, 3) float64 rotation matrix (read-only; :func:`common.rotation.rotation_matrix`)."""
+        """(3, 3) float64 rotation matrix (read-only;
+        :func:`mrdem_common.rotation.rotation_matrix`)."""
         rot = rotation_matrix(self.orientation)
         rot.flags.writeable = False
         return rot

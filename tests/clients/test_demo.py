@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from clients import demo
-from common.serving import readyz
+from mrdem_common.serving import readyz
 
 
 def test_demo_writes_csv_png_and_vtk(service, tmp_path, capsys):

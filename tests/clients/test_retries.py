@@ -14,7 +14,7 @@ from starlette.responses import JSONResponse
 from starlette.routing import Route
 
 from clients import Client, ProblemError, RemoteScene, ServiceUnreachable
-from common.serving import free_port
+from mrdem_common.serving import free_port
 
 
 class Flaky:

@@ -1,4 +1,4 @@
-"""service.codecs: the HTTP side of the wire format on top of common.codec, interoperating
+"""service.codecs: the HTTP side of the wire format on top of mrdem_common.codec, interoperating
 with the client's side (clients/codec.py) byte for byte."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from clients import codec as client_codec
-from common import codec
+from mrdem_common import codec
 from service import codecs
 from service.errors import BadRequest, UnsupportedMediaType
 

@@ -13,7 +13,7 @@ import sys
 import httpx
 from harness import ROOT
 
-from common.serving import ServiceProcess, free_port
+from mrdem_common.serving import ServiceProcess, free_port
 
 DOCKERFILE = ROOT / "docker" / "Dockerfile"
 
@@ -50,7 +50,7 @@ def test_the_image_copies_every_package_it_installs():
     find = pyproject.split("[tool.setuptools.packages.find]", 1)[1]
     include = re.search(r"^include\s*=\s*\[([^\]]*)\]", find, re.MULTILINE).group(1)
     packages = [name.rstrip("*") for name in json.loads(f"[{include}]")]
-    assert "common" in packages  # the service and the clients import it
+    assert "mrdem_common" in packages  # the service and the clients import it
     copied = [rest for word, rest in _instructions() if word == "COPY"]
     for package in packages:
         assert f"{package} {package}" in copied, f"docker/Dockerfile does not COPY {package}/"

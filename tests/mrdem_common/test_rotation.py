@@ -1,4 +1,4 @@
-"""common.rotation: unit quaternions (w, x, y, z) to rotation matrices."""
+"""mrdem_common.rotation: unit quaternions (w, x, y, z) to rotation matrices."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from common.rotation import rotation_matrix
 from engine.geometry.pose import Pose
+from mrdem_common.rotation import rotation_matrix
 
 
 def _unit(rng: np.random.Generator, n: int) -> np.ndarray:

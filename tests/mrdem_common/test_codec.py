@@ -1,4 +1,4 @@
-"""common.codec: numpy arrays through msgpack as ``[dtype, shape, bytes]`` and back."""
+"""mrdem_common.codec: numpy arrays through msgpack as ``[dtype, shape, bytes]`` and back."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from common.codec import (
+from mrdem_common.codec import (
     NDARRAY_EXT,
     CodecError,
     array_ext,

@@ -1,4 +1,4 @@
-"""common.serving: the one way to start ``python -m service`` (its successful start is what
+"""mrdem_common.serving: the one way to start ``python -m service`` (its successful start is what
 every service and client test's server goes through: tests/harness.py); here what it says
 when the service cannot start."""
 
@@ -10,7 +10,7 @@ import sys
 import pytest
 from harness import ROOT
 
-from common.serving import ServiceProcess, ServiceStartError, free_port, readyz
+from mrdem_common.serving import ServiceProcess, ServiceStartError, free_port, readyz
 
 
 def test_a_free_port_can_be_bound_and_answers_not_ready():
