@@ -39,16 +39,17 @@ from numba import types
 from numba.extending import intrinsic
 
 
-def _source_hash() -> str:
+def source_hash(root: Path) -> str:
+    """16 hex digits of SHA-256 over every ``*.py`` below ``root`` (sub-folders included:
+    helpers inline across them), each file's relative path and bytes, in path order."""
     digest = hashlib.sha256()
-    root = Path(__file__).parent
-    for path in sorted(root.rglob("*.py")):  # every kernel folder: helpers inline across them
+    for path in sorted(root.rglob("*.py")):
         digest.update(path.relative_to(root).as_posix().encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
 
 
-KERNEL_SOURCE_HASH = _source_hash()
+KERNEL_SOURCE_HASH = source_hash(Path(__file__).parent)
 _cache_base = numba.config.CACHE_DIR or os.path.join(
     os.path.expanduser("~"), ".cache", "mrdem", "numba"
 )

@@ -1,0 +1,52 @@
+"""The kernel cache key (engine/kernels/jit.py): a hash of every kernel source file, so that
+an edit anywhere under engine/kernels — a helper inlined from a sibling folder included —
+selects a fresh Numba cache directory instead of stale machine code."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numba
+
+from engine.kernels import jit
+
+KERNELS = Path(jit.__file__).parent
+
+
+def copy_of_the_kernels(tmp_path: Path) -> Path:
+    root = tmp_path / "kernels"
+    shutil.copytree(KERNELS, root, ignore=shutil.ignore_patterns("__pycache__"))
+    return root
+
+
+def test_the_cache_directory_is_named_by_the_hash_of_these_sources():
+    assert jit.source_hash(KERNELS) == jit.KERNEL_SOURCE_HASH
+    assert numba.config.CACHE_DIR.endswith(f"kernels-{jit.KERNEL_SOURCE_HASH}")
+    nested = sorted(p.relative_to(KERNELS).as_posix() for p in KERNELS.rglob("*.py"))
+    assert any("/" in name for name in nested)  # the kernels live in sub-folders
+
+
+def test_an_edit_in_any_kernel_folder_changes_the_hash(tmp_path):
+    root = copy_of_the_kernels(tmp_path)
+    original = jit.source_hash(root)
+    assert original == jit.KERNEL_SOURCE_HASH
+    for path in sorted(root.rglob("*.py")):
+        text = path.read_bytes()
+        path.write_bytes(text + b"\n")
+        assert jit.source_hash(root) != original, path.relative_to(root)
+        path.write_bytes(text)
+    assert jit.source_hash(root) == original
+
+
+def test_moving_or_adding_a_kernel_file_changes_the_hash(tmp_path):
+    root = copy_of_the_kernels(tmp_path)
+    original = jit.source_hash(root)
+    rotation = root / "geometry" / "rotation.py"
+    moved = root / "collision" / "rotation.py"
+    rotation.rename(moved)
+    assert jit.source_hash(root) != original
+    moved.rename(rotation)
+    assert jit.source_hash(root) == original
+    (root / "dynamics" / "extra.py").write_text("X = 1\n")
+    assert jit.source_hash(root) != original
