@@ -40,9 +40,6 @@ EXACT, ITERATIVE, HYBRID = np.int64(0), np.int64(1), np.int64(2)
 NO_CONTACT, CONTACT, NOT_CONVERGED = np.int64(0), np.int64(1), np.int64(2)
 ZERO = np.int64(0)
 BLOCK = 256
-# Hybrid contacts closer than NEAR tolerances of the iterative kernel get exact points: below
-# that, the direction of q − p (the contact normal) is set by the iteration's error.
-NEAR = 16.0
 # Counter slots of the ``stats`` output (int64).
 STAT_PAIRS, STAT_CULLED, STAT_ITERATIVE, STAT_FALLBACKS = 0, 1, 2, 3
 STAT_SPHERES = 4  # node pairs pruned by bounding spheres (the traversal only)
@@ -373,9 +370,13 @@ def _resolve(m, params, work, n, out, stats):
     """Contacts among the ``m ≤ BLOCK`` pairs gathered in ``work``; returns the new count.
 
     ``params = (mode, iterations, rtol, one, band_factor)``. ``EXACT``: the exact
-    kernel on all. Otherwise the iterative kernel, and in ``HYBRID`` mode the
-    exact kernel on its not-converged pairs and on its contacts closer than
-    :data:`NEAR` tolerances (whose normals the iteration cannot resolve).
+    kernel on all. Otherwise the iterative kernel; in ``HYBRID`` mode it only decides
+    (certified "no contact" is final), and every pair in contact or not converged gets the
+    exact kernel's distance and closest points (``stats[STAT_FALLBACKS]`` counts the
+    not-converged ones): the contacts are the exact kernel's, bit for bit. (The iterate's
+    points are *a* pair at a distance within the tolerance, not the closest pair: for
+    parallel faces or edges they can lie a triangle apart, and near touching the direction
+    q − p is the iteration's noise.) ``ITERATIVE`` records the iterate's bound and points.
     """
     mode, iterations, rtol, one, band_factor = params
     ga, gfa, gb, gfb, gi, gj, geps, scratch, dist = work
@@ -402,10 +403,9 @@ def _resolve(m, params, work, n, out, stats):
                 n = _record(
                     n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
                 )
-        elif mode == HYBRID and st == CONTACT and upper <= NEAR * (rtol * eps + band):
-            # nearly coincident closest points: the iterate's q − p, and so the contact's
-            # normal, is no better than its tolerance; the exact kernel gives the true ones
-            stats[STAT_FALLBACKS] += 1
+        elif mode == HYBRID and st == CONTACT:
+            # certified contact: the exact kernel's geometry (the exact distance is <= the
+            # certified upper bound <= ε, so the pair stays a contact)
             d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
             n = _record(n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s)
         elif st != NO_CONTACT:
