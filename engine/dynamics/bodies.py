@@ -60,12 +60,12 @@ class BodyCache:
 
     The terms are rebuilt when the bodies, their masses or fixed flags, gravity or the
     external forces change (arrays replaced, or edited in place); the smallest moments
-    when ``scene.inertia`` or ``scene.fixed`` changes (replaced or edited in place).
+    when ``scene.inertia`` is replaced or ``scene.fixed`` changes (replaced or edited in place).
     """
 
     def __init__(self) -> None:
         self._terms: tuple[tuple, tuple, BodyTerms] | None = None  # arrays, values, terms
-        self._smallest: tuple[np.ndarray, tuple, np.ndarray] | None = None
+        self._smallest: tuple[np.ndarray, bytes, np.ndarray] | None = None
 
     def terms(self, scene) -> BodyTerms:
         """The :class:`BodyTerms` of ``scene``'s bodies."""
@@ -86,11 +86,11 @@ class BodyCache:
 
     def smallest_inertia(self, scene) -> np.ndarray:
         """(n,) float64 smallest principal moment of each free body (NaN for fixed ones),
-        kept while ``scene.inertia`` is the same array with the same values and the fixed
-        flags are unchanged (replaced or edited in place: a body released with
-        ``scene.fixed[i] = False`` gets its moment back)."""
+        kept while ``scene.inertia`` is the same array (adding bodies replaces it) and the
+        fixed flags have the same values (replaced or edited in place: a body released
+        with ``scene.fixed[i] = False`` gets its moment back)."""
         cached = self._smallest
-        values = (scene.inertia.tobytes(), scene.fixed.tobytes())
+        values = scene.fixed.tobytes()
         if cached is None or cached[0] is not scene.inertia or cached[1] != values:
             free = ~scene.fixed
             smallest = np.full(len(free), np.nan)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from engine import Pose, build_tree, find_contacts, find_contacts_batch, shapes
@@ -71,8 +71,7 @@ def assert_same_geometry(got, exact) -> None:
 def test_the_default_search_returns_the_exact_kernels_contacts(seed, which):
     a, b = PAIRS[which]
     found = near_pose(np.random.default_rng(seed), a, b)
-    if found is None:
-        return
+    assume(found is not None)  # no contact in 100 tries: not a case of this property
     pose_a, pose_b, exact = found
     assert_same_geometry(find_contacts(TREES[a], pose_a, TREES[b], pose_b), exact)
 
