@@ -326,12 +326,14 @@ class Coal:
         return self.query(a, b, pa, pb, 0.0, 1, "NO_REQUEST")().isCollision()
 
 
-def near_pose(coal: Coal, a, b, mesh_a, mesh_b, margin, rng):
-    """A random pose of B near A (see the module docstring) and its δ / margin."""
+def near_pose(intersects, mesh_a, mesh_b, margin, rng, delta=None):
+    """A random pose of B near A (see the module docstring) and its δ / margin.
+
+    ``intersects(pose_b) -> bool`` says whether the meshes intersect with A at the identity;
+    ``delta`` (in margins) is drawn from U(−2, 1) unless given."""
     from engine import Pose
 
     ca, cb = mesh_a.bounds.mean(axis=0), mesh_b.bounds.mean(axis=0)
-    pa = Pose.identity()
     for _ in range(20):
         q, u = rng.normal(size=4), rng.normal(size=3)  # uniform rotation and direction
         q, u = q / np.linalg.norm(q), u / np.linalg.norm(u)
@@ -341,13 +343,13 @@ def near_pose(coal: Coal, a, b, mesh_a, mesh_b, margin, rng):
             return Pose(ca + s * u - rot @ cb, q)
 
         lo, hi = 0.0, (mesh_a.diameter + mesh_b.diameter) / 2 + 2 * margin
-        if coal.intersect(a, b, pa, at(lo)):
+        if intersects(at(lo)):
             break
     while hi - lo > 1e-4 * margin:  # lo intersects (unless 20 draws found none), hi does not
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if coal.intersect(a, b, pa, at(mid)) else (lo, mid)
-    delta = rng.uniform(-2.0, 1.0)
-    return pa, at(hi + delta * margin), delta
+        lo, hi = (mid, hi) if intersects(at(mid)) else (lo, mid)
+    delta = rng.uniform(-2.0, 1.0) if delta is None else delta
+    return Pose.identity(), at(hi + delta * margin), delta
 
 
 def timed(fn) -> float:
@@ -371,12 +373,18 @@ def pair_cases(meshes: dict, trees: dict) -> list[tuple[str, str]]:
 def compare_pose(meshes, trees, coal: Coal, a, b, rng, args) -> dict:
     """One random near pose of the pair (a, b): both searches' pairs, their disagreements'
     exact distances, the flat exact search where affordable, and both queries as callables."""
-    from engine import find_contacts, triangle_distances
+    from engine import Pose, find_contacts, triangle_distances
 
     ta, tb = trees[a], trees[b]
     margin = ta.leaf_epsilon + tb.leaf_epsilon
     capacity = meshes[a].n_faces * meshes[b].n_faces
-    pa, pb, delta = near_pose(coal, a, b, meshes[a], meshes[b], margin, rng)
+    pa, pb, delta = near_pose(
+        lambda pose: coal.intersect(a, b, Pose.identity(), pose),
+        meshes[a],
+        meshes[b],
+        margin,
+        rng,
+    )
 
     def ours():
         return find_contacts(ta, pa, tb, pb)
