@@ -1,7 +1,8 @@
 """Benchmark of the triangle-distance kernels: throughput, run time against error, JIT.
 
 Run: ``make bench`` or ``.venv/bin/python benchmarks/kernels.py [--quick]``.
-Prints tables and writes ``bench-results/kernels.json`` (and
+Prints tables and writes ``bench-results/kernels.json`` (``kernels_paired.json`` with
+``--paired-only``; and
 ``bench-results/kernels_iterations.png`` when matplotlib is installed).
 
 Workloads (all real meshes, radius-1 icospheres of 1,280 triangles):
@@ -13,7 +14,11 @@ Workloads (all real meshes, radius-1 icospheres of 1,280 triangles):
 * **listed, random** — uniformly random index pairs of the same spheres;
 * **iterations** — near pairs of two randomly rotated noisy spheres at gaps
   from overlapping to 0.05: fallback rate and distance error of the iterative
-  kernel against the exact kernel, per iteration count.
+  kernel against the exact kernel, per iteration count;
+* **paired API** — what a user calls: ``triangle_distances(a, b)`` on numpy
+  ``(n, 3, 3)`` arrays of 200,000 pairs (the listed near and random pairs above,
+  gathered into arrays), preparation included, and ``TriangleSet(a)`` alone
+  (``--paired-only`` runs just this section).
 """
 
 from __future__ import annotations
@@ -126,6 +131,51 @@ def throughput(repeat: int) -> list[dict]:
                         f"{form:14s} {kernel:9s} {precision:7s} {threads}t "
                         f"{r['mpairs_per_s']:9.1f} Mpairs/s  contacts {r['contacts']:5d}  "
                         f"culled {r['culled'] / n_pairs:6.1%}  fallbacks {r['fallbacks']}"
+                    )
+    return rows
+
+
+def paired_api(repeat: int) -> list[dict]:
+    """Pairs per second of the public paired form from numpy arrays (preparation included)."""
+    a, b = sphere_pair(0.01)
+    centroids_a, centroids_b = a.mean(axis=1), b.mean(axis=1)
+    near = np.argwhere(np.linalg.norm(centroids_a[:, None] - centroids_b[None], axis=2) < 0.5)
+    n = 200_000
+    near = np.repeat(near, n // len(near) + 1, axis=0)[:n]
+    rng = np.random.default_rng(0)
+    random_pairs = np.stack([rng.integers(0, len(a), n), rng.integers(0, len(b), n)], 1)
+    rows = []
+    for precision in PRECISIONS:
+        for workload, idx in (("near", near), ("random", random_pairs)):
+            x = np.ascontiguousarray(a[idx[:, 0]], dtype=precision)
+            y = np.ascontiguousarray(b[idx[:, 1]], dtype=precision)
+            for threads in (1, 2):
+                prepare = best_time(partial(TriangleSet, x, precision, threads=threads), repeat)
+                for kernel in KERNELS:
+                    run = partial(
+                        triangle_distances, x, y, kernel, precision, 0.02, threads=threads
+                    )
+                    seconds = best_time(run, repeat)
+                    result = run()
+                    rows.append(
+                        {
+                            "workload": workload,
+                            "kernel": kernel,
+                            "precision": precision,
+                            "threads": threads,
+                            "pairs": n,
+                            "seconds": seconds,
+                            "mpairs_per_s": n / seconds / 1e6,
+                            "triangle_set_ns_per_triangle": prepare / n * 1e9,
+                            "contacts": int((result.distance <= 0.02).sum()),
+                            "fallbacks": result.stats.fallbacks,
+                        }
+                    )
+                    r = rows[-1]
+                    print(
+                        f"paired {workload:6s} {kernel:9s} {precision:7s} {threads}t "
+                        f"{r['mpairs_per_s']:8.1f} Mpairs/s  fallbacks {r['fallbacks']:5d}  "
+                        f"TriangleSet {r['triangle_set_ns_per_triangle']:5.1f} ns/triangle"
                     )
     return rows
 
@@ -250,6 +300,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats and iterations")
     parser.add_argument("--skip-jit", action="store_true", help="skip the JIT subprocess timing")
+    parser.add_argument(
+        "--paired-only", action="store_true", help="time the public paired API only"
+    )
     args = parser.parse_args()
     repeat = 2 if args.quick else 5
     OUT.mkdir(exist_ok=True)
@@ -257,8 +310,14 @@ def main() -> None:
     print(json.dumps(info))
     engine.warmup()
     results = {"machine": info}
+    if args.paired_only:
+        results["paired_api"] = paired_api(repeat)
+        (OUT / "kernels_paired.json").write_text(json.dumps(results, indent=2))
+        print(f"wrote {OUT / 'kernels_paired.json'}")
+        return
     results["jit"] = None if args.skip_jit else jit_times()
     results["throughput"] = throughput(repeat)
+    results["paired_api"] = paired_api(repeat)
     results["iterations"] = iteration_study(repeat, args.quick)
     (OUT / "kernels.json").write_text(json.dumps(results, indent=2))
     if plot(results["iterations"], OUT / "kernels_iterations.png"):

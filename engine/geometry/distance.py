@@ -11,7 +11,9 @@ Three kernels (see :mod:`engine.kernels`): ``"exact"`` (the oracle),
 * :func:`triangle_contacts` with ``pairs`` — an explicit list of index pairs.
 
 This module validates, converts, splits work across threads and assembles
-results; the kernels only see flat arrays.
+results; the kernels only see flat arrays. Raw triangle arrays are prepared (and their
+coordinates validated) by one kernel pass; the paired form prepares them block by block
+inside its kernel, so nothing of size ``n`` but the results is allocated.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import enum
 import os
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -29,10 +32,12 @@ from engine.arguments import (
     check_pairs,
     check_precision,
     check_triangles,
+    coordinate_limit,
     kernel_constants,
 )
 from engine.errors import InvalidArgumentError
 from engine.kernels.geometry import triangle_batch as tb
+from engine.kernels.geometry import triangle_paired as tp
 from engine.workers import worker_pool
 
 __all__ = [
@@ -156,6 +161,7 @@ class TriangleSet:
     triangles : (n, 3, 3) float — vertex coordinates per triangle
     precision : "float32" or "float64"
     name : str — how error messages refer to the argument
+    threads : int, optional — worker threads of the preparation (default: all cores)
 
     Attributes
     ----------
@@ -164,22 +170,40 @@ class TriangleSet:
     frames : (14, n) — per-triangle normal, dual basis, inverse edge lengths, validity,
         conditioning κ = 1/sin θ (θ the angle at vertex 0)
     coords_rm, frames_rm : (n, 9), (n, 14) — row-major copies, for gathering
-        arbitrary triangles (one or two cache lines per triangle)
+        arbitrary triangles (one or two cache lines per triangle; made on first use)
     """
 
     def __init__(
-        self, triangles: np.ndarray, precision: str = "float64", name: str = "triangles"
+        self,
+        triangles: np.ndarray,
+        precision: str = "float64",
+        name: str = "triangles",
+        *,
+        threads: int | None = None,
     ) -> None:
         dtype = check_precision(precision)
-        tri = _largest_angle_first(check_triangles(triangles, name, dtype))
+        raw = _raw_triangles(triangles, name, dtype)
+        n = len(raw)
         self.dtype = np.dtype(dtype)
-        coords = np.ascontiguousarray(tri.reshape(-1, 9).T)
-        frames = np.empty((14, len(tri)))
-        tb.frames_kernel(coords, frames, 1.0, float(kernel_constants(dtype)[1]))
-        self.coords = coords.astype(dtype)
-        self.frames = frames.astype(dtype)
-        self.coords_rm = np.ascontiguousarray(self.coords.T)
-        self.frames_rm = np.ascontiguousarray(self.frames.T)
+        self.coords, self.frames = np.empty((9, n), dtype), np.empty((14, n), dtype)
+        limit, tiny = _limit_and_tiny(dtype)
+
+        def run(start: int, stop: int) -> int:
+            return tp.prepare_kernel(raw, start, stop, limit, tiny, self.coords, self.frames)
+
+        if sum(_map_chunks(run, n, n, threads)):
+            _raise_invalid(((triangles, name),), dtype)
+        self._threads = threads
+
+    @cached_property
+    def coords_rm(self) -> np.ndarray:
+        """(n, 9) — row-major copy of :attr:`coords` (made on first use)."""
+        return _row_major(self.coords, getattr(self, "_threads", None))
+
+    @cached_property
+    def frames_rm(self) -> np.ndarray:
+        """(n, 14) — row-major copy of :attr:`frames` (made on first use)."""
+        return _row_major(self.frames, getattr(self, "_threads", None))
 
     def __len__(self) -> int:
         return self.coords.shape[1]
@@ -192,8 +216,6 @@ class TriangleSet:
         self.dtype = coords.dtype
         self.coords = np.ascontiguousarray(coords)
         self.frames = np.ascontiguousarray(frames)
-        self.coords_rm = np.ascontiguousarray(self.coords.T)
-        self.frames_rm = np.ascontiguousarray(self.frames.T)
         return self
 
     def subset(self, index: np.ndarray, precision: str) -> TriangleSet:
@@ -205,31 +227,18 @@ class TriangleSet:
 
     @classmethod
     def of(
-        cls, triangles: np.ndarray | TriangleSet, precision: str, name: str = "triangles"
+        cls,
+        triangles: np.ndarray | TriangleSet,
+        precision: str,
+        name: str = "triangles",
+        *,
+        threads: int | None = None,
     ) -> TriangleSet:
         """``triangles`` itself if already prepared in ``precision``, else a new set."""
         if isinstance(triangles, TriangleSet):
-            if triangles.dtype != np.dtype(check_precision(precision)):
-                raise InvalidArgumentError(
-                    f"{name} is a {triangles.dtype.name} TriangleSet but precision={precision!r}"
-                )
+            _check_set_precision(triangles, precision, name)
             return triangles
-        return cls(triangles, precision, name)
-
-
-def _largest_angle_first(tri: np.ndarray) -> np.ndarray:
-    """Rotate each triangle's vertices so that vertex 0 is opposite its longest edge."""
-    opposite = np.stack(
-        [
-            np.einsum("ij,ij->i", tri[:, 2] - tri[:, 1], tri[:, 2] - tri[:, 1]),
-            np.einsum("ij,ij->i", tri[:, 0] - tri[:, 2], tri[:, 0] - tri[:, 2]),
-            np.einsum("ij,ij->i", tri[:, 1] - tri[:, 0], tri[:, 1] - tri[:, 0]),
-        ],
-        axis=1,
-    )
-    first = np.argmax(opposite, axis=1)
-    order = (first[:, None] + np.arange(3)[None, :]) % 3
-    return np.take_along_axis(tri, order[:, :, None], axis=1)
+        return cls(triangles, precision, name, threads=threads)
 
 
 def triangle_distances(
@@ -261,40 +270,30 @@ def triangle_distances(
     -------
     TriangleDistances
     """
-    sa, sb, dtype, params = _prepare(a, b, kernel, precision, iterations, rtol)
-    n = len(sa)
-    if len(sb) != n:
-        raise InvalidArgumentError(f"a and b must pair up: {n} and {len(sb)} triangles")
+    dtype, params = _parameters(kernel, precision, iterations, rtol)
+    (n, side_a), (nb, side_b) = _paired_sides(a, b, precision, dtype)
+    if nb != n:
+        raise InvalidArgumentError(f"a and b must pair up: {n} and {nb} triangles")
     eps = check_epsilon(epsilon, n, dtype, "epsilon")
     distance = np.empty(n, dtype)
     lower = np.empty(n, dtype)
-    point_a = np.empty((3, n), dtype)
-    point_b = np.empty((3, n), dtype)
+    point_a = np.empty((n, 3), dtype)
+    point_b = np.empty((n, 3), dtype)
     status = np.empty(n, np.int8)
+    limit = _limit_and_tiny(dtype)[0]
+    out = (distance, lower, point_a, point_b, status)
 
-    def run(start: int, stop: int) -> np.ndarray:
+    def run(start: int, stop: int) -> tuple:
         stats = np.zeros(tb.N_STATS, np.int64)
-        tb.paired_kernel(
-            sa.coords,
-            sa.frames,
-            sb.coords,
-            sb.frames,
-            eps,
-            start,
-            stop,
-            params,
-            distance,
-            lower,
-            point_a,
-            point_b,
-            status,
-            stats,
-        )
-        return stats
+        bad = tp.paired_kernel(side_a, side_b, eps, start, stop, params, limit, *out, stats)
+        return bad, stats
 
-    stats = sum(_map_chunks(run, n, n, threads), np.zeros(tb.N_STATS, np.int64))
+    parts = _map_chunks(run, n, n, threads)
+    if sum(bad for bad, _ in parts):
+        _raise_invalid(((a, "a"), (b, "b")), dtype)
+    stats = sum((s for _, s in parts), np.zeros(tb.N_STATS, np.int64))
     return TriangleDistances(
-        distance, lower, point_a.T.copy(), point_b.T.copy(), status, KernelStats.from_array(stats)
+        distance, lower, point_a, point_b, status, KernelStats.from_array(stats)
     )
 
 
@@ -328,7 +327,9 @@ def triangle_contacts(
     -------
     TriangleContacts
     """
-    sa, sb, dtype, params = _prepare(a, b, kernel, precision, iterations, rtol)
+    dtype, params = _parameters(kernel, precision, iterations, rtol)
+    sa = TriangleSet.of(a, precision, "a", threads=threads)
+    sb = TriangleSet.of(b, precision, "b", threads=threads)
     eps_a = check_epsilon(epsilon_a, len(sa), dtype, "epsilon_a")
     eps_b = check_epsilon(epsilon_b, len(sb), dtype, "epsilon_b")
     rm = (sa.coords_rm, sa.frames_rm, sb.coords_rm, sb.frames_rm)
@@ -406,14 +407,81 @@ def _contact_buffers(capacity: int, like: np.ndarray) -> tuple:
     return tb.result_buffers(capacity, like)
 
 
-def _prepare(a, b, kernel, precision, iterations, rtol) -> tuple:
-    """Validated ``(TriangleSet a, TriangleSet b, dtype, kernel params)``.
+def _parameters(kernel, precision, iterations, rtol) -> tuple:
+    """Validated ``(dtype, kernel params)``.
 
     ``params = (mode, iterations, rtol, 1, band factor)`` in the kernels' types.
     """
     mode = check_kernel(kernel)
     dtype = check_precision(precision)
-    sa, sb = TriangleSet.of(a, precision, "a"), TriangleSet.of(b, precision, "b")
     iterations, rtol = check_iterations(iterations, rtol)
     one, band = kernel_constants(dtype)
-    return sa, sb, dtype, (mode, np.int64(iterations), dtype(rtol), one, band)
+    return dtype, (mode, np.int64(iterations), dtype(rtol), one, band)
+
+
+def _limit_and_tiny(dtype) -> tuple[float, float]:
+    """``(largest admissible coordinate, sliver threshold)`` as float64, for ``dtype``."""
+    return coordinate_limit(dtype), float(kernel_constants(dtype)[1])
+
+
+def _check_set_precision(s: TriangleSet, precision: str, name: str) -> None:
+    if s.dtype != np.dtype(check_precision(precision)):
+        raise InvalidArgumentError(
+            f"{name} is a {s.dtype.name} TriangleSet but precision={precision!r}"
+        )
+
+
+def _raw_triangles(x, name: str, dtype) -> np.ndarray:
+    """``x`` as a C-contiguous, writable (n, 3, 3) float32 or float64 array for the
+    preparation kernels, without a copy where it already is one (float32 only for a float32
+    ``dtype``). Anything else goes through :func:`check_triangles` (a validated float64
+    copy); the kernels validate the coordinates of the rest."""
+    if (
+        isinstance(x, np.ndarray)
+        and x.ndim == 3
+        and x.shape[1:] == (3, 3)
+        and (x.dtype == np.float64 or x.dtype == dtype == np.float32)
+    ):
+        if x.flags.c_contiguous and x.flags.writeable:
+            return x
+        return np.array(x, order="C")
+    return check_triangles(x, name, dtype)
+
+
+def _row_major(columns: np.ndarray, threads: int | None) -> np.ndarray:
+    """``columns (k, n)`` as a new C-contiguous ``(n, k)`` array."""
+    out = np.empty(columns.shape[::-1], columns.dtype)
+    n = columns.shape[1]
+    _map_chunks(lambda s, e: tp.transpose_kernel(columns, s, e, out), n, 4 * n, threads)
+    return out
+
+
+def _raise_invalid(arguments, dtype) -> None:
+    """Raise :func:`check_triangles`' error for the first invalid raw argument of
+    ``arguments ((value, name), ...)`` (a kernel counted invalid triangles)."""
+    for value, name in arguments:
+        if not isinstance(value, TriangleSet):
+            check_triangles(value, name, dtype)
+    raise InvalidArgumentError("triangles hold non-finite or too large coordinates")
+
+
+def _paired_sides(a, b, precision: str, dtype) -> tuple:
+    """``((n, side), (n, side))`` of :func:`triangle_distances`' two arguments: side
+    ``(0, raw, empty, empty)`` for raw triangles (prepared in the kernel), ``(1, empty raw,
+    coords, frames)`` for a :class:`TriangleSet`. Empty raw arrays take the other side's
+    raw dtype, so that mixed calls reuse a compiled specialisation."""
+    raws = [
+        None if isinstance(x, TriangleSet) else _raw_triangles(x, name, dtype)
+        for x, name in ((a, "a"), (b, "b"))
+    ]
+    raw_dtype = next((r.dtype for r in raws if r is not None), np.dtype(dtype))
+    sides = []
+    for x, raw, name in zip((a, b), raws, ("a", "b"), strict=True):
+        if raw is None:
+            _check_set_precision(x, precision, name)
+            empty = np.empty((0, 3, 3), raw_dtype)
+            sides.append((len(x), (np.int64(1), empty, x.coords, x.frames)))
+        else:
+            empty9, empty14 = np.empty((9, 0), dtype), np.empty((14, 0), dtype)
+            sides.append((len(raw), (np.int64(0), raw, empty9, empty14)))
+    return sides[0], sides[1]
