@@ -19,14 +19,23 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from engine.kernels.collision.traversal import listed_query, query_kernel
+from engine.kernels.collision.contact_merge import contact_kernel
+from engine.kernels.collision.rigid import move_kernel
+from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.geometry.triangle_batch import (
+    BLOCK,
     N_STATS,
     STAT_FALLBACKS,
     STAT_ITERATIVE,
     STAT_PAIRS,
     STAT_SPHERES,
+    ZERO,
+    exact_paired,
+    gather_rows,
+    listed_kernel,
+    listed_workspace,
+    result_buffers,
 )
 from engine.kernels.jit import EXACT_JIT, JIT
 
@@ -47,6 +56,7 @@ class NodeBank(NamedTuple):
     master_coords: np.ndarray  # (N, 9) float64: the same in float64 (B is moved from them)
     master_frames: np.ndarray  # (N, 14) float64
     epsilon: np.ndarray  # (N,) float64: ε of each node
+    epsilon_query: np.ndarray  # (N,) query precision: the same, rounded (a leaf's ε there)
     face: np.ndarray  # (N,) int32: a leaf's face (local to its tree), −1 for a surrogate
     first_child: np.ndarray  # (N,) int32: local row of a surrogate's first child
     child_count: np.ndarray  # (N,) int32
@@ -96,6 +106,7 @@ class PairLists(NamedTuple):
     shifts: np.ndarray  # (m, 3) float64
     offsets: np.ndarray  # (m + 1,) int64: entry e owns near[offsets[e]:offsets[e + 1]]
     near: np.ndarray  # (L, 2) int64: leaf node pairs (local rows of A, of B)
+    distances: np.ndarray  # (L,) float64: each pair's exact distance at the reference pose
 
 
 class BatchResult(NamedTuple):
@@ -109,6 +120,7 @@ class BatchResult(NamedTuple):
     overlaps: np.ndarray  # (c,) float64
     near_offsets: np.ndarray  # (k + 1,) int64: the queries' new lists
     near: np.ndarray  # (L, 2) int64
+    near_distances: np.ndarray  # (L,) float64: their exact distances at the reference pose
     rotations: np.ndarray  # (k, 3, 3) float64: each list's reference pose
     shifts: np.ndarray  # (k, 3) float64
 
@@ -154,10 +166,12 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
 
     ``lists`` (:class:`PairLists`): with ``skin > 0`` each query keeps a list of its
     leaf pairs within ε_a + ε_b + s, s = skin·(ε_a + ε_b) (leaf ε), found at a reference
-    pose of B relative to A. Query q uses the list of entry ``slot[q]`` (−1: none)
-    instead of a traversal while B's points have moved by less than s relative to A
-    since its reference pose (:func:`motion_bound`, plus the query's margin); else it
-    traverses with every ε grown by s/2 and starts a new list.
+    pose of B relative to A, with their exact distances there. Query q uses the list of
+    entry ``slot[q]`` (−1: none) instead of a traversal while B's points have moved by
+    less than s relative to A since its reference pose (:func:`motion_bound`, plus the
+    query's margin), evaluating only the listed pairs that may be in contact now
+    (:func:`listed_contacts`); else it traverses with every ε grown by s/2 and starts a
+    new list (:func:`reference_distances`).
 
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
     int64 (pairs evaluated per level). In the result, query ``start + t`` owns rows
@@ -173,33 +187,19 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     shifts = np.empty((k, 3))
     pairs = np.empty((64, 2), np.int64)
     near_out = np.empty((64, 2), np.int64)
+    near_distances = np.empty(64)
     points = np.empty((64, 3))
     normals_out = np.empty((64, 3))
     overlaps = np.empty(64)
     stats = np.zeros(N_STATS, np.int64)
+    local = np.full(max(1, int(trees.node_count.max())), -1, np.int64)  # listed_contacts'
+    buffers = listed_workspace(bank.coords)
+    found = result_buffers(256, bank.coords)
     for t in range(k):
         q = start + t
         ta, tb = queries.tree_a[q], queries.tree_b[q]
         a0, a1 = trees.node_offset[ta], trees.node_offset[ta] + trees.node_count[ta]
         b0, b1 = trees.node_offset[tb], trees.node_offset[tb] + trees.node_count[tb]
-        body_a = (  # query_kernel's body layout; A in the query precision
-            bank.coords[a0:a1],
-            bank.frames[a0:a1],
-            bank.epsilon[a0:a1],
-            bank.face[a0:a1],
-            bank.first_child[a0:a1],
-            bank.child_count[a0:a1],
-            bank.spheres[a0:a1],
-        )
-        body_b = (  # B from float64, moved into A's frame by the query
-            bank.master_coords[b0:b1],
-            bank.master_frames[b0:b1],
-            bank.epsilon[b0:b1],
-            bank.face[b0:b1],
-            bank.first_child[b0:b1],
-            bank.child_count[b0:b1],
-            bank.spheres[b0:b1],
-        )
         position_a = queries.position_a[q]
         rot_a, rotation, shift = relative_pose(
             position_a, queries.orientation_a[q], queries.position_b[q], queries.orientation_b[q]
@@ -215,21 +215,57 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
         skin = lists.skin
         reach = skin * (ea + eb)
         e = lists.slot[q]
-        listed = (
-            skin > 0.0
-            and e >= 0
-            and motion_bound(lists.rotations[e], lists.shifts[e], rotation, shift, extent_b)
-            + margin
-            < reach
-        )
+        drift = 0.0
+        if skin > 0.0 and e >= 0:
+            drift = motion_bound(lists.rotations[e], lists.shifts[e], rotation, shift, extent_b)
+        listed = skin > 0.0 and e >= 0 and drift + margin < reach
+        p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
         if listed:
-            near = lists.near[lists.offsets[e] : lists.offsets[e + 1]]
-            result = listed_query(
-                body_a, body_b, (rotation, shift), margin, near, params.leaf, contact, stats
+            l0, l1 = lists.offsets[e], lists.offsets[e + 1]
+            found, n, face_b = listed_contacts(
+                bank,
+                (a0, a1, b0),
+                (rotation, shift),
+                lists.near[l0:l1],
+                lists.distances[l0:l1],
+                drift + 2.0 * margin,
+                params.leaf,
+                (local, buffers, found),
+                stats,
             )
-            depth, unfoldings = 0, 0
+            depth, unfoldings, n1 = 0, 0, n0  # a kept list stays put
             rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
+            pairs = _grow(pairs, p0, p0 + n)
+            points, normals_out, overlaps = (
+                _grow(points, c0, c0 + n),
+                _grow(normals_out, c0, c0 + n),
+                _grow(overlaps, c0, c0 + n),
+            )
+            out = (pairs[p0:], points[c0:], normals_out[c0:], overlaps[c0:])
+            face_a = bank.face[a0:a1]
+            m, c = contact_kernel(
+                found, n, face_a, face_b, contact[0], contact[1], contact[2], setup, out
+            )
+            p1, c1 = p0 + m, c0 + c
         else:
+            body_a = (  # query_kernel's body layout; A in the query precision
+                bank.coords[a0:a1],
+                bank.frames[a0:a1],
+                bank.epsilon[a0:a1],
+                bank.face[a0:a1],
+                bank.first_child[a0:a1],
+                bank.child_count[a0:a1],
+                bank.spheres[a0:a1],
+            )
+            body_b = (  # B from float64, moved into A's frame by the query
+                bank.master_coords[b0:b1],
+                bank.master_frames[b0:b1],
+                bank.epsilon[b0:b1],
+                bank.face[b0:b1],
+                bank.first_child[b0:b1],
+                bank.child_count[b0:b1],
+                bank.spheres[b0:b1],
+            )
             inflate = 0.5 * reach if skin > 0.0 else 0.0
             depth, unfoldings, result, near = query_kernel(
                 body_a,
@@ -244,22 +280,32 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 levels[t],
             )
             rotations[t], shifts[t] = rotation, shift
-        found, pts, nrm, ovl = result
-        p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
-        p1, c1 = p0 + found.shape[0], c0 + pts.shape[0]
-        n1 = n0 + (near.shape[0] if skin > 0.0 and not listed else 0)  # a kept list stays put
-        pairs = _grow(pairs, p0, p1)
-        near_out = _grow(near_out, n0, n1)
-        points, normals_out, overlaps = (
-            _grow(points, c0, c1),
-            _grow(normals_out, c0, c1),
-            _grow(overlaps, c0, c1),
-        )
-        pairs[p0:p1] = found
-        near_out[n0:n1] = near[: n1 - n0]
-        points[c0:c1] = pts
-        normals_out[c0:c1] = nrm
-        overlaps[c0:c1] = ovl
+            found_pairs, pts, nrm, ovl = result
+            p1, c1 = p0 + found_pairs.shape[0], c0 + pts.shape[0]
+            n1 = n0 + (near.shape[0] if skin > 0.0 else 0)
+            pairs = _grow(pairs, p0, p1)
+            points, normals_out, overlaps = (
+                _grow(points, c0, c1),
+                _grow(normals_out, c0, c1),
+                _grow(overlaps, c0, c1),
+            )
+            pairs[p0:p1] = found_pairs
+            points[c0:c1] = pts
+            normals_out[c0:c1] = nrm
+            overlaps[c0:c1] = ovl
+            if n1 > n0:
+                near_out = _grow(near_out, n0, n1)
+                near_distances = _grow(near_distances, n0, n1)
+                near_out[n0:n1] = near
+                reference_distances(
+                    bank,
+                    (a0, b0),
+                    (rotation, shift),
+                    near,
+                    params.leaf[3],
+                    (local, buffers),
+                    near_distances[n0:n1],
+                )
         pair_offsets[t + 1], contact_offsets[t + 1], near_offsets[t + 1] = p1, c1, n1
         counts[t, COUNT_DEPTH] = depth
         counts[t, COUNT_UNFOLDINGS] = unfoldings
@@ -278,9 +324,122 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
         overlaps[:n_contacts],
         near_offsets,
         near_out[:n_near],
+        near_distances[:n_near],
         rotations,
         shifts,
     )
+
+
+@njit(**JIT)
+def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scratch, stats):
+    """The leaf pairs in contact among a query's listed ``near (m, 2)`` int64 pairs (local
+    leaf rows of A, of B); returns ``(found, n, face_b)``: the first ``n`` rows of
+    ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`, maybe
+    grown) as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` reports them,
+    B's rows renumbered, and ``face_b`` the face of each renumbered row.
+
+    ``rows = (a0, a1, b0)``: A's rows in ``bank``, B's first row; ``pose`` moves B into
+    A's frame. A pair whose exact distance at the list's reference pose ``distances (m,)``
+    exceeds its ε_a + ε_b by more than ``slack`` (how far B moved since, plus a rounding
+    allowance of two query margins) times the conditioning max(1, κ_a, κ_b) of its
+    triangles cannot be in contact now: it is dropped before any arithmetic. The others,
+    in list order, go through the same ``listed_kernel`` with B's rows moved by the same
+    :func:`~engine.kernels.collision.rigid.move_kernel` as in the traversal (only those
+    rows, packed), so each gives the traversal's bits. ``scratch = (local, buffers,
+    found)``: ``local`` (≥ B's node count) int64 all −1 (left so), the listed workspace
+    and the result buffers."""
+    a0, a1, b0 = rows
+    rotation, shift = pose
+    local, buffers, found = scratch
+    coords_a = bank.coords[a0:a1]
+    m = near.shape[0]
+    kept = np.empty((m, 2), np.int64)
+    moving = np.empty(m, np.int64)
+    mk, u = ZERO, ZERO
+    for t in range(m):
+        i, j = near[t, 0], near[t, 1]
+        reach = bank.epsilon[a0 + i] + bank.epsilon[b0 + j]
+        kappa = max(1.0, max(bank.master_frames[a0 + i, 13], bank.master_frames[b0 + j, 13]))
+        if distances[t] - reach > slack * kappa:
+            continue
+        if local[j] < 0:
+            local[j] = u
+            moving[u] = j
+            u += 1
+        kept[mk, 0], kept[mk, 1] = i, local[j]
+        mk += 1
+    coords_b, frames_b, eps_b, face_b = _packed(bank, b0, moving[:u], rotation, shift, coords_a)
+    for r in range(u):
+        local[moving[r]] = -1
+    if found[0].shape[0] < mk:
+        found = result_buffers(max(mk, 2 * found[0].shape[0]), coords_a)
+    rm = (coords_a, bank.frames[a0:a1], coords_b, frames_b)
+    eps_a = bank.epsilon_query[a0:a1]
+    n = listed_kernel(rm, eps_a, eps_b, kept, ZERO, mk, leaf_params, buffers, found, ZERO, stats)
+    return found, n, face_b
+
+
+@njit(**JIT)
+def reference_distances(bank, rows, pose, near, one, scratch, out):
+    """``out[t]`` (float64): the exact distance of the listed leaf pair ``near[t]`` (local
+    rows of A, of B; ``rows = (a0, b0)`` their first rows in ``bank``) with B at
+    ``pose``, in the query precision (``one``: 1 in it), B's rows moved as the traversal
+    moves them. ``scratch = (local, buffers)`` as in :func:`listed_contacts`."""
+    a0, b0 = rows
+    local, buffers = scratch
+    coords_a = bank.coords[a0:]
+    frames_a = bank.frames[a0:]
+    m = near.shape[0]
+    moving = np.empty(m, np.int64)
+    index_b = np.empty(m, np.int64)
+    u = ZERO
+    for t in range(m):
+        j = near[t, 1]
+        if local[j] < 0:
+            local[j] = u
+            moving[u] = j
+            u += 1
+        index_b[t] = local[j]
+    coords_b, frames_b, _, _ = _packed(bank, b0, moving[:u], pose[0], pose[1], coords_a)
+    for r in range(u):
+        local[moving[r]] = -1
+    ga, gfa, gb, gfb = buffers[0][0], buffers[0][1], buffers[0][2], buffers[0][3]
+    dist = buffers[0][8]
+    index_a = np.empty(m, np.int64)
+    for t in range(m):
+        index_a[t] = near[t, 0]
+    for t0 in range(0, m, BLOCK):
+        c = min(BLOCK, m - t0)
+        gather_rows(coords_a, frames_a, index_a[t0:], c, ga, gfa)
+        gather_rows(coords_b, frames_b, index_b[t0:], c, gb, gfb)
+        exact_paired(ga, gfa, gb, gfb, c, one, dist)
+        for r in range(c):
+            out[t0 + r] = dist[r]
+
+
+@njit(**JIT)
+def _packed(bank, b0, moving, rotation, shift, like):
+    """``(coords (u, 9), frames (u, 14), ε (u,), face (u,))``: B's rows ``b0 + moving[r]``
+    packed into row ``r`` and moved into A's frame (coordinates, frames and ε in the
+    precision of ``like``; :func:`~engine.kernels.collision.rigid.move_kernel` moves
+    each row by the same arithmetic wherever it sits)."""
+    u = moving.shape[0]
+    master_coords = np.empty((u, 9))
+    master_frames = np.empty((u, 14))
+    eps = np.empty(u, like.dtype)
+    face = np.empty(u, np.int32)
+    for r in range(u):
+        j = b0 + moving[r]
+        for c in range(9):
+            master_coords[r, c] = bank.master_coords[j, c]
+        for c in range(14):
+            master_frames[r, c] = bank.master_frames[j, c]
+        eps[r] = bank.epsilon_query[j]
+        face[r] = bank.face[j]
+    coords = np.empty((u, 9), like.dtype)
+    frames = np.empty((u, 14), like.dtype)
+    move_kernel(master_coords, master_frames, np.arange(u), rotation, shift, coords, frames)
+    return coords, frames, eps, face
 
 
 @njit(**EXACT_JIT)
