@@ -20,20 +20,15 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.contact_merge import contact_kernel
-from engine.kernels.collision.rigid import move_kernel
+from engine.kernels.collision.pair_lists import listed_contacts, reference_distances
 from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.geometry.triangle_batch import (
-    BLOCK,
     N_STATS,
     STAT_FALLBACKS,
     STAT_ITERATIVE,
     STAT_PAIRS,
     STAT_SPHERES,
-    ZERO,
-    exact_paired,
-    gather_rows,
-    listed_kernel,
     listed_workspace,
     result_buffers,
 )
@@ -328,118 +323,6 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
         rotations,
         shifts,
     )
-
-
-@njit(**JIT)
-def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scratch, stats):
-    """The leaf pairs in contact among a query's listed ``near (m, 2)`` int64 pairs (local
-    leaf rows of A, of B); returns ``(found, n, face_b)``: the first ``n`` rows of
-    ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`, maybe
-    grown) as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` reports them,
-    B's rows renumbered, and ``face_b`` the face of each renumbered row.
-
-    ``rows = (a0, a1, b0)``: A's rows in ``bank``, B's first row; ``pose`` moves B into
-    A's frame. A pair whose exact distance at the list's reference pose ``distances (m,)``
-    exceeds its ε_a + ε_b by more than ``slack`` (how far B moved since, plus a rounding
-    allowance of two query margins) times the conditioning max(1, κ_a, κ_b) of its
-    triangles cannot be in contact now: it is dropped before any arithmetic. The others,
-    in list order, go through the same ``listed_kernel`` with B's rows moved by the same
-    :func:`~engine.kernels.collision.rigid.move_kernel` as in the traversal (only those
-    rows, packed), so each gives the traversal's bits. ``scratch = (local, buffers,
-    found)``: ``local`` (≥ B's node count) int64 all −1 (left so), the listed workspace
-    and the result buffers."""
-    a0, a1, b0 = rows
-    rotation, shift = pose
-    local, buffers, found = scratch
-    coords_a = bank.coords[a0:a1]
-    m = near.shape[0]
-    kept = np.empty((m, 2), np.int64)
-    moving = np.empty(m, np.int64)
-    mk, u = ZERO, ZERO
-    for t in range(m):
-        i, j = near[t, 0], near[t, 1]
-        reach = bank.epsilon[a0 + i] + bank.epsilon[b0 + j]
-        kappa = max(1.0, max(bank.master_frames[a0 + i, 13], bank.master_frames[b0 + j, 13]))
-        if distances[t] - reach > slack * kappa:
-            continue
-        if local[j] < 0:
-            local[j] = u
-            moving[u] = j
-            u += 1
-        kept[mk, 0], kept[mk, 1] = i, local[j]
-        mk += 1
-    coords_b, frames_b, eps_b, face_b = _packed(bank, b0, moving[:u], rotation, shift, coords_a)
-    for r in range(u):
-        local[moving[r]] = -1
-    if found[0].shape[0] < mk:
-        found = result_buffers(max(mk, 2 * found[0].shape[0]), coords_a)
-    rm = (coords_a, bank.frames[a0:a1], coords_b, frames_b)
-    eps_a = bank.epsilon_query[a0:a1]
-    n = listed_kernel(rm, eps_a, eps_b, kept, ZERO, mk, leaf_params, buffers, found, ZERO, stats)
-    return found, n, face_b
-
-
-@njit(**JIT)
-def reference_distances(bank, rows, pose, near, one, scratch, out):
-    """``out[t]`` (float64): the exact distance of the listed leaf pair ``near[t]`` (local
-    rows of A, of B; ``rows = (a0, b0)`` their first rows in ``bank``) with B at
-    ``pose``, in the query precision (``one``: 1 in it), B's rows moved as the traversal
-    moves them. ``scratch = (local, buffers)`` as in :func:`listed_contacts`."""
-    a0, b0 = rows
-    local, buffers = scratch
-    coords_a = bank.coords[a0:]
-    frames_a = bank.frames[a0:]
-    m = near.shape[0]
-    moving = np.empty(m, np.int64)
-    index_b = np.empty(m, np.int64)
-    u = ZERO
-    for t in range(m):
-        j = near[t, 1]
-        if local[j] < 0:
-            local[j] = u
-            moving[u] = j
-            u += 1
-        index_b[t] = local[j]
-    coords_b, frames_b, _, _ = _packed(bank, b0, moving[:u], pose[0], pose[1], coords_a)
-    for r in range(u):
-        local[moving[r]] = -1
-    ga, gfa, gb, gfb = buffers[0][0], buffers[0][1], buffers[0][2], buffers[0][3]
-    dist = buffers[0][8]
-    index_a = np.empty(m, np.int64)
-    for t in range(m):
-        index_a[t] = near[t, 0]
-    for t0 in range(0, m, BLOCK):
-        c = min(BLOCK, m - t0)
-        gather_rows(coords_a, frames_a, index_a[t0:], c, ga, gfa)
-        gather_rows(coords_b, frames_b, index_b[t0:], c, gb, gfb)
-        exact_paired(ga, gfa, gb, gfb, c, one, dist)
-        for r in range(c):
-            out[t0 + r] = dist[r]
-
-
-@njit(**JIT)
-def _packed(bank, b0, moving, rotation, shift, like):
-    """``(coords (u, 9), frames (u, 14), ε (u,), face (u,))``: B's rows ``b0 + moving[r]``
-    packed into row ``r`` and moved into A's frame (coordinates, frames and ε in the
-    precision of ``like``; :func:`~engine.kernels.collision.rigid.move_kernel` moves
-    each row by the same arithmetic wherever it sits)."""
-    u = moving.shape[0]
-    master_coords = np.empty((u, 9))
-    master_frames = np.empty((u, 14))
-    eps = np.empty(u, like.dtype)
-    face = np.empty(u, np.int32)
-    for r in range(u):
-        j = b0 + moving[r]
-        for c in range(9):
-            master_coords[r, c] = bank.master_coords[j, c]
-        for c in range(14):
-            master_frames[r, c] = bank.master_frames[j, c]
-        eps[r] = bank.epsilon_query[j]
-        face[r] = bank.face[j]
-    coords = np.empty((u, 9), like.dtype)
-    frames = np.empty((u, 14), like.dtype)
-    move_kernel(master_coords, master_frames, np.arange(u), rotation, shift, coords, frames)
-    return coords, frames, eps, face
 
 
 @njit(**EXACT_JIT)
