@@ -96,19 +96,24 @@ class PairCache:
     """Leaf pairs near contact kept per body pair between searches (a Verlet list).
 
     For each cached pair: the leaf pairs within ε_a + ε_b + s at a reference pose of B
-    relative to A, s = ``skin``·(ε_a + ε_b). While no point of B has moved by s or more
-    relative to A since then, every leaf pair in contact is on the list (a pair at
-    distance ≤ ε_a + ε_b now was within ε_a + ε_b + s then), so evaluating the list
-    alone gives exactly the traversal's contacts — bit for bit, with the same kernels on
-    the same moved triangles. Past that, the pair is traversed again (with ε grown by
-    s/2 per body) and its list renewed. Entries are keyed by an integer per body pair
-    chosen by the caller; a search keeps exactly the entries of the pairs it was asked.
+    relative to A, s = ``skin``·(ε_a + ε_b), with their exact distances there. While no
+    point of B has moved by s or more relative to A since then, every leaf pair in
+    contact is on the list (a pair at distance ≤ ε_a + ε_b now was within ε_a + ε_b + s
+    then), so evaluating the list alone gives exactly the traversal's contacts — bit for
+    bit, with the same kernels on the same moved triangles; of the list only the pairs
+    whose reference distance, less how far B has moved since, is still within reach
+    (with a rounding allowance) are evaluated, the others cannot touch
+    (:func:`~engine.kernels.collision.batch.listed_contacts`). Past that, the pair is
+    traversed again (with ε grown by s/2 per body) and its list renewed. Entries are
+    keyed by an integer per body pair chosen by the caller; a search keeps exactly the
+    entries of the pairs it was asked.
 
     Attributes
     ----------
     skin : float — s relative to the pair's ε_a + ε_b (0: no caching)
     keys : (m,) int64 sorted; rotations (m, 3, 3), shifts (m, 3) float64 — reference poses
     offsets : (m + 1,) int64; near : (L, 2) int64 — the lists (node pairs), CSR
+    distances : (L,) float64 — each listed pair's exact distance at the reference pose
     """
 
     def __init__(self, skin: float = 0.5) -> None:
@@ -125,6 +130,7 @@ class PairCache:
         self.shifts = np.zeros((0, 3))
         self.offsets = np.zeros(1, np.int64)
         self.near = np.zeros((0, 2), np.int64)
+        self.distances = np.zeros(0)
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -132,7 +138,15 @@ class PairCache:
     @property
     def nbytes(self) -> int:
         return sum(
-            a.nbytes for a in (self.keys, self.rotations, self.shifts, self.offsets, self.near)
+            a.nbytes
+            for a in (
+                self.keys,
+                self.rotations,
+                self.shifts,
+                self.offsets,
+                self.near,
+                self.distances,
+            )
         )
 
     def _slots(self, keys: np.ndarray) -> np.ndarray:
@@ -144,14 +158,16 @@ class PairCache:
 
     def _lists(self, slots: np.ndarray) -> kb.PairLists:
         """The lists as the kernel reads them, ``slots (k,)`` int64 naming each query's."""
-        return kb.PairLists(self.skin, slots, self.rotations, self.shifts, self.offsets, self.near)
+        return kb.PairLists(
+            self.skin, slots, self.rotations, self.shifts, self.offsets, self.near, self.distances
+        )
 
     def _replace(
         self, keys: np.ndarray, slots: np.ndarray, kept: np.ndarray, batch: kb.BatchResult
     ) -> None:
         """Hold exactly the pairs ``keys (k,)``: entry ``slots[q]`` where ``kept[q]`` (the
         query used its list, which stays valid), else the query's new list in ``batch``
-        (its ``near_offsets``, ``near``, ``rotations`` and ``shifts``)."""
+        (its ``near_offsets``, ``near``, ``near_distances``, ``rotations`` and ``shifts``)."""
         near_offsets, near, rotations, shifts = (
             batch.near_offsets, batch.near, batch.rotations, batch.shifts
         )  # fmt: skip
@@ -168,10 +184,13 @@ class PairCache:
         lists = np.empty((int(offsets[-1]), 2), np.int64)
         lists[old] = self.near[rows[old]]
         lists[~old] = near[rows[~old]]
+        distances = np.empty(int(offsets[-1]))
+        distances[old] = self.distances[rows[old]]
+        distances[~old] = batch.near_distances[rows[~old]]
         self.keys = np.ascontiguousarray(keys[order], np.int64)
         self.rotations = rotations[order]
         self.shifts = shifts[order]
-        self.offsets, self.near = offsets, lists
+        self.offsets, self.near, self.distances = offsets, lists, distances
 
 
 _NO_LISTS = kb.PairLists(
@@ -181,6 +200,7 @@ _NO_LISTS = kb.PairLists(
     shifts=np.zeros((0, 3)),
     offsets=np.zeros(1, np.int64),
     near=np.zeros((0, 2), np.int64),
+    distances=np.zeros(0),
 )
 
 
@@ -219,6 +239,7 @@ class TreeBank:
             master_coords=np.concatenate([m.coords_rm for m in masters]),
             master_frames=np.concatenate([m.frames_rm for m in masters]),
             epsilon=np.concatenate([t.epsilon for t in trees]),
+            epsilon_query=np.concatenate([t.epsilon for t in trees]).astype(self.dtype),
             face=np.concatenate([t.face for t in trees]),
             first_child=np.concatenate([t.first_child for t in trees]),
             child_count=np.concatenate([t.child_count for t in trees]),

@@ -297,12 +297,15 @@ def _aitken(beta: float, previous, current) -> float:
     """Aitken's relaxation, safeguarded: the weight that would have cancelled the last
     swing of the residual (it halves when residuals alternate and grows while they keep
     their direction), but at most half the last weight when the residual grew and at most
-    twice it otherwise; clamped to [BETA_MIN, BETA_MAX]."""
+    twice it otherwise; clamped to [BETA_MIN, BETA_MAX]. The dot products come from one
+    kernel pass in a fixed order (:func:`~engine.kernels.dynamics.motion.relaxation_products`),
+    not from BLAS, whose threads cost milliseconds per product on a busy machine."""
     if previous is not None:
-        swing = current - previous
-        norm = float(swing @ swing)
-        proposal = -beta * float(previous @ swing) / norm if norm > 0 else beta
-        grew = float(current @ current) > float(previous @ previous)
+        products = np.empty(4)
+        kd.relaxation_products(previous, current, products)
+        along, norm, now, before = (float(x) for x in products)
+        proposal = -beta * along / norm if norm > 0 else beta
+        grew = now > before
         beta = min(proposal, 0.5 * beta) if grew else min(proposal, 2.0 * beta)
     return min(max(beta, BETA_MIN), BETA_MAX)
 

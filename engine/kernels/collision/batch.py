@@ -19,7 +19,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from engine.kernels.collision.traversal import listed_query, query_kernel
+from engine.kernels.collision.contact_merge import contact_kernel
+from engine.kernels.collision.pair_lists import listed_contacts, reference_distances
+from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.geometry.triangle_batch import (
     N_STATS,
@@ -27,6 +29,8 @@ from engine.kernels.geometry.triangle_batch import (
     STAT_ITERATIVE,
     STAT_PAIRS,
     STAT_SPHERES,
+    listed_workspace,
+    result_buffers,
 )
 from engine.kernels.jit import EXACT_JIT, JIT
 
@@ -47,6 +51,7 @@ class NodeBank(NamedTuple):
     master_coords: np.ndarray  # (N, 9) float64: the same in float64 (B is moved from them)
     master_frames: np.ndarray  # (N, 14) float64
     epsilon: np.ndarray  # (N,) float64: ε of each node
+    epsilon_query: np.ndarray  # (N,) query precision: the same, rounded (a leaf's ε there)
     face: np.ndarray  # (N,) int32: a leaf's face (local to its tree), −1 for a surrogate
     first_child: np.ndarray  # (N,) int32: local row of a surrogate's first child
     child_count: np.ndarray  # (N,) int32
@@ -96,6 +101,7 @@ class PairLists(NamedTuple):
     shifts: np.ndarray  # (m, 3) float64
     offsets: np.ndarray  # (m + 1,) int64: entry e owns near[offsets[e]:offsets[e + 1]]
     near: np.ndarray  # (L, 2) int64: leaf node pairs (local rows of A, of B)
+    distances: np.ndarray  # (L,) float64: each pair's exact distance at the reference pose
 
 
 class BatchResult(NamedTuple):
@@ -109,6 +115,7 @@ class BatchResult(NamedTuple):
     overlaps: np.ndarray  # (c,) float64
     near_offsets: np.ndarray  # (k + 1,) int64: the queries' new lists
     near: np.ndarray  # (L, 2) int64
+    near_distances: np.ndarray  # (L,) float64: their exact distances at the reference pose
     rotations: np.ndarray  # (k, 3, 3) float64: each list's reference pose
     shifts: np.ndarray  # (k, 3) float64
 
@@ -154,10 +161,12 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
 
     ``lists`` (:class:`PairLists`): with ``skin > 0`` each query keeps a list of its
     leaf pairs within ε_a + ε_b + s, s = skin·(ε_a + ε_b) (leaf ε), found at a reference
-    pose of B relative to A. Query q uses the list of entry ``slot[q]`` (−1: none)
-    instead of a traversal while B's points have moved by less than s relative to A
-    since its reference pose (:func:`motion_bound`, plus the query's margin); else it
-    traverses with every ε grown by s/2 and starts a new list.
+    pose of B relative to A, with their exact distances there. Query q uses the list of
+    entry ``slot[q]`` (−1: none) instead of a traversal while B's points have moved by
+    less than s relative to A since its reference pose (:func:`motion_bound`, plus the
+    query's margin), evaluating only the listed pairs that may be in contact now
+    (:func:`listed_contacts`); else it traverses with every ε grown by s/2 and starts a
+    new list (:func:`reference_distances`).
 
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
     int64 (pairs evaluated per level). In the result, query ``start + t`` owns rows
@@ -173,33 +182,19 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     shifts = np.empty((k, 3))
     pairs = np.empty((64, 2), np.int64)
     near_out = np.empty((64, 2), np.int64)
+    near_distances = np.empty(64)
     points = np.empty((64, 3))
     normals_out = np.empty((64, 3))
     overlaps = np.empty(64)
     stats = np.zeros(N_STATS, np.int64)
+    local = np.full(max(1, int(trees.node_count.max())), -1, np.int64)  # listed_contacts'
+    buffers = listed_workspace(bank.coords)
+    found = result_buffers(256, bank.coords)
     for t in range(k):
         q = start + t
         ta, tb = queries.tree_a[q], queries.tree_b[q]
         a0, a1 = trees.node_offset[ta], trees.node_offset[ta] + trees.node_count[ta]
         b0, b1 = trees.node_offset[tb], trees.node_offset[tb] + trees.node_count[tb]
-        body_a = (  # query_kernel's body layout; A in the query precision
-            bank.coords[a0:a1],
-            bank.frames[a0:a1],
-            bank.epsilon[a0:a1],
-            bank.face[a0:a1],
-            bank.first_child[a0:a1],
-            bank.child_count[a0:a1],
-            bank.spheres[a0:a1],
-        )
-        body_b = (  # B from float64, moved into A's frame by the query
-            bank.master_coords[b0:b1],
-            bank.master_frames[b0:b1],
-            bank.epsilon[b0:b1],
-            bank.face[b0:b1],
-            bank.first_child[b0:b1],
-            bank.child_count[b0:b1],
-            bank.spheres[b0:b1],
-        )
         position_a = queries.position_a[q]
         rot_a, rotation, shift = relative_pose(
             position_a, queries.orientation_a[q], queries.position_b[q], queries.orientation_b[q]
@@ -215,21 +210,57 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
         skin = lists.skin
         reach = skin * (ea + eb)
         e = lists.slot[q]
-        listed = (
-            skin > 0.0
-            and e >= 0
-            and motion_bound(lists.rotations[e], lists.shifts[e], rotation, shift, extent_b)
-            + margin
-            < reach
-        )
+        drift = 0.0
+        if skin > 0.0 and e >= 0:
+            drift = motion_bound(lists.rotations[e], lists.shifts[e], rotation, shift, extent_b)
+        listed = skin > 0.0 and e >= 0 and drift + margin < reach
+        p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
         if listed:
-            near = lists.near[lists.offsets[e] : lists.offsets[e + 1]]
-            result = listed_query(
-                body_a, body_b, (rotation, shift), margin, near, params.leaf, contact, stats
+            l0, l1 = lists.offsets[e], lists.offsets[e + 1]
+            found, n, face_b = listed_contacts(
+                bank,
+                (a0, a1, b0),
+                (rotation, shift),
+                lists.near[l0:l1],
+                lists.distances[l0:l1],
+                drift + 2.0 * margin,
+                params.leaf,
+                (local, buffers, found),
+                stats,
             )
-            depth, unfoldings = 0, 0
+            depth, unfoldings, n1 = 0, 0, n0  # a kept list stays put
             rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
+            pairs = _grow(pairs, p0, p0 + n)
+            points, normals_out, overlaps = (
+                _grow(points, c0, c0 + n),
+                _grow(normals_out, c0, c0 + n),
+                _grow(overlaps, c0, c0 + n),
+            )
+            out = (pairs[p0:], points[c0:], normals_out[c0:], overlaps[c0:])
+            face_a = bank.face[a0:a1]
+            m, c = contact_kernel(
+                found, n, face_a, face_b, contact[0], contact[1], contact[2], setup, out
+            )
+            p1, c1 = p0 + m, c0 + c
         else:
+            body_a = (  # query_kernel's body layout; A in the query precision
+                bank.coords[a0:a1],
+                bank.frames[a0:a1],
+                bank.epsilon[a0:a1],
+                bank.face[a0:a1],
+                bank.first_child[a0:a1],
+                bank.child_count[a0:a1],
+                bank.spheres[a0:a1],
+            )
+            body_b = (  # B from float64, moved into A's frame by the query
+                bank.master_coords[b0:b1],
+                bank.master_frames[b0:b1],
+                bank.epsilon[b0:b1],
+                bank.face[b0:b1],
+                bank.first_child[b0:b1],
+                bank.child_count[b0:b1],
+                bank.spheres[b0:b1],
+            )
             inflate = 0.5 * reach if skin > 0.0 else 0.0
             depth, unfoldings, result, near = query_kernel(
                 body_a,
@@ -244,22 +275,32 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 levels[t],
             )
             rotations[t], shifts[t] = rotation, shift
-        found, pts, nrm, ovl = result
-        p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
-        p1, c1 = p0 + found.shape[0], c0 + pts.shape[0]
-        n1 = n0 + (near.shape[0] if skin > 0.0 and not listed else 0)  # a kept list stays put
-        pairs = _grow(pairs, p0, p1)
-        near_out = _grow(near_out, n0, n1)
-        points, normals_out, overlaps = (
-            _grow(points, c0, c1),
-            _grow(normals_out, c0, c1),
-            _grow(overlaps, c0, c1),
-        )
-        pairs[p0:p1] = found
-        near_out[n0:n1] = near[: n1 - n0]
-        points[c0:c1] = pts
-        normals_out[c0:c1] = nrm
-        overlaps[c0:c1] = ovl
+            found_pairs, pts, nrm, ovl = result
+            p1, c1 = p0 + found_pairs.shape[0], c0 + pts.shape[0]
+            n1 = n0 + (near.shape[0] if skin > 0.0 else 0)
+            pairs = _grow(pairs, p0, p1)
+            points, normals_out, overlaps = (
+                _grow(points, c0, c1),
+                _grow(normals_out, c0, c1),
+                _grow(overlaps, c0, c1),
+            )
+            pairs[p0:p1] = found_pairs
+            points[c0:c1] = pts
+            normals_out[c0:c1] = nrm
+            overlaps[c0:c1] = ovl
+            if n1 > n0:
+                near_out = _grow(near_out, n0, n1)
+                near_distances = _grow(near_distances, n0, n1)
+                near_out[n0:n1] = near
+                reference_distances(
+                    bank,
+                    (a0, b0),
+                    (rotation, shift),
+                    near,
+                    params.leaf[3],
+                    (local, buffers),
+                    near_distances[n0:n1],
+                )
         pair_offsets[t + 1], contact_offsets[t + 1], near_offsets[t + 1] = p1, c1, n1
         counts[t, COUNT_DEPTH] = depth
         counts[t, COUNT_UNFOLDINGS] = unfoldings
@@ -278,6 +319,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
         overlaps[:n_contacts],
         near_offsets,
         near_out[:n_near],
+        near_distances[:n_near],
         rotations,
         shifts,
     )

@@ -185,3 +185,57 @@ def test_pair_cache_rejects_bad_keys_and_skins(trees):
         bank.find_contacts(*args, cache=PairCache(), keys=np.array([1.5, 2.5]))
     with pytest.raises(InvalidArgumentError, match="skin"):
         PairCache(skin=-1.0)
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_pair_cache_keeps_exact_distances_and_evaluates_only_pairs_within_reach(trees, precision):
+    """The cache keeps each listed leaf pair's exact distance at its reference pose; a
+    query served by its list evaluates only the pairs that may touch (fewer than listed
+    when the list holds pairs beyond reach) and still gets the traversal's bits."""
+    from engine import PairCache, triangle_distances
+
+    bank = TreeBank(trees, precision)
+    queries = random_queries(trees, 60, seed=11)
+    index = {id(t): i for i, t in enumerate(trees)}
+    ta = np.array([index[id(q[0])] for q in queries])
+    tb = np.array([index[id(q[2])] for q in queries])
+    pa, qa = (
+        np.array([q[1].position for q in queries]),
+        np.array([q[1].orientation for q in queries]),
+    )
+    pb, qb = (
+        np.array([q[3].position for q in queries]),
+        np.array([q[3].orientation for q in queries]),
+    )
+    cache = PairCache(skin=0.5)
+    keys = np.arange(len(queries), dtype=np.int64)
+    args = (ta, pa, qa, tb, pb, qb)
+    bank.find_contacts(*args, cache=cache, keys=keys, threads=1)
+    assert len(cache.distances) == len(cache.near) > 0
+    tolerance = 1e-9 if precision == "float64" else 1e-4
+    for e, (tree_a, pose_a, tree_b, pose_b) in enumerate(queries):
+        near = cache.near[cache.offsets[e] : cache.offsets[e + 1]]
+        if not len(near):
+            continue
+        sides = []
+        for tree, pose, rows in ((tree_a, pose_a, near[:, 0]), (tree_b, pose_b, near[:, 1])):
+            mesh = tree.views.geometry.mesh
+            corners = mesh.vertices[mesh.faces[tree.face[rows]]]
+            sides.append(pose.apply(corners.reshape(-1, 3)).reshape(-1, 3, 3))
+        want = triangle_distances(*sides, kernel="exact").distance
+        got = cache.distances[cache.offsets[e] : cache.offsets[e + 1]]
+        np.testing.assert_allclose(got, want, rtol=0, atol=tolerance)
+        reach = tree_a.leaf_epsilon + tree_b.leaf_epsilon
+        assert (got <= 1.5 * reach + tolerance).all()
+
+    again = bank.find_contacts(*args, cache=cache, keys=keys, threads=1)
+    fresh = bank.find_contacts(*args, threads=1)
+    for name in ("pair_offsets", "pairs", "contact_offsets", "points", "normals", "overlaps"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(fresh, name))
+    listed = again.counts[:, 6] == 1
+    assert listed.all()
+    sizes = np.diff(cache.offsets)
+    evaluated = again.counts[:, 4]
+    found = np.diff(again.pair_offsets)
+    assert (found <= evaluated).all() and (evaluated <= sizes).all()
+    assert evaluated.sum() < sizes.sum()

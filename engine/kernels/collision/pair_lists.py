@@ -1,0 +1,181 @@
+"""The leaf-pair lists of the pair cache: their reference distances, and the contacts of a
+query served by its list (see :class:`~engine.kernels.collision.batch.PairLists`).
+
+A list holds a body pair's leaf pairs within ε_a + ε_b + s at a reference pose of B
+relative to A, each with its exact distance there (:func:`reference_distances`, when the
+list is made). While B has moved by less than s since, :func:`listed_contacts` evaluates
+only the listed pairs that may touch now, with B's rows moved by the traversal's
+:func:`~engine.kernels.collision.rigid.move_kernel` (packed: only the rows needed).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.kernels.collision.rigid import move_kernel
+from engine.kernels.geometry.triangle_batch import (
+    BLOCK,
+    CONTACT,
+    ITERATIVE,
+    STAT_PAIRS,
+    ZERO,
+    exact_paired,
+    exact_point,
+    gather_rows,
+    listed_kernel,
+    result_buffers,
+)
+from engine.kernels.jit import JIT
+
+
+@njit(**JIT)
+def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scratch, stats):
+    """The leaf pairs in contact among a query's listed ``near (m, 2)`` int64 pairs (local
+    leaf rows of A, of B); returns ``(found, n, face_b)``: the first ``n`` rows of
+    ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`, maybe
+    grown) as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` reports them,
+    B's rows renumbered, and ``face_b`` the face of each renumbered row.
+
+    ``rows = (a0, a1, b0)``: A's rows in ``bank``, B's first row; ``pose`` moves B into
+    A's frame; the exact distance of each pair at the list's reference pose is
+    ``distances (m,)`` and ``slack`` how far B moved since plus a rounding allowance
+    (two query margins). With δ its distance less its ε_a + ε_b and a = ``slack`` times
+    the conditioning max(1, κ_a, κ_b) of its triangles, a pair with δ > a cannot be in
+    contact now: it is dropped before any arithmetic. The others, in list order, go
+    through the same ``listed_kernel`` with B's rows moved by the same
+    :func:`~engine.kernels.collision.rigid.move_kernel` as in the traversal (only those
+    rows, packed), so each gives the traversal's bits — except that, outside
+    ``ITERATIVE`` mode, a pair with δ < −a is certainly in contact, which every path of
+    ``listed_kernel`` then records as ``exact_point``'s distance and points with status
+    ``CONTACT``: it gets exactly that, without the iterative kernel's decision, appended
+    after the others (:func:`contact_kernel` orders pairs by their faces, so the
+    contacts do not depend on the order of ``found``). ``scratch = (local, buffers,
+    found)``: ``local`` (≥ B's node count) int64 all −1 (left so), the listed workspace
+    and the result buffers."""
+    a0, a1, b0 = rows
+    rotation, shift = pose
+    local, buffers, found = scratch
+    coords_a, frames_a = bank.coords[a0:a1], bank.frames[a0:a1]
+    m = near.shape[0]
+    kept = np.empty((m, 2), np.int64)
+    sure_a = np.empty(m, np.int64)
+    sure_b = np.empty(m, np.int64)
+    moving = np.empty(m, np.int64)
+    shortcut = leaf_params[0] != ITERATIVE
+    mk, ms, u = ZERO, ZERO, ZERO
+    for t in range(m):
+        i, j = near[t, 0], near[t, 1]
+        reach = bank.epsilon[a0 + i] + bank.epsilon[b0 + j]
+        kappa = max(1.0, max(bank.master_frames[a0 + i, 13], bank.master_frames[b0 + j, 13]))
+        excess, allowance = distances[t] - reach, slack * kappa
+        if excess > allowance:
+            continue
+        if local[j] < 0:
+            local[j] = u
+            moving[u] = j
+            u += 1
+        if shortcut and excess < -allowance:
+            sure_a[ms], sure_b[ms] = i, local[j]
+            ms += 1
+        else:
+            kept[mk, 0], kept[mk, 1] = i, local[j]
+            mk += 1
+    coords_b, frames_b, eps_b, face_b = _packed(bank, b0, moving[:u], rotation, shift, coords_a)
+    for r in range(u):
+        local[moving[r]] = -1
+    if found[0].shape[0] < mk + ms:
+        found = result_buffers(max(mk + ms, 2 * found[0].shape[0]), coords_a)
+    rm = (coords_a, frames_a, coords_b, frames_b)
+    eps_a = bank.epsilon_query[a0:a1]
+    n = listed_kernel(rm, eps_a, eps_b, kept, ZERO, mk, leaf_params, buffers, found, ZERO, stats)
+    if ms > 0:
+        stats[STAT_PAIRS] += ms
+        n = _sure_contacts(rm, sure_a, sure_b, ms, leaf_params[3], buffers[0], found, n)
+    return found, n, face_b
+
+
+@njit(**JIT)
+def _sure_contacts(rm, index_a, index_b, m, one, work, out, n):
+    """Append pairs ``(index_a[t], index_b[t])``, ``t < m``, of rows of ``rm = (A's
+    coords, frames, B's coords, frames)`` to ``out`` after its first ``n`` rows (room
+    assumed) as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` records a
+    contact: ``exact_point`` on the gathered pair, status ``CONTACT``; returns the count."""
+    coords_a, frames_a, coords_b, frames_b = rm
+    ga, gfa, gb, gfb = work[0], work[1], work[2], work[3]
+    out_i, out_j, out_d, out_p, out_q, out_s = out
+    for t0 in range(0, m, BLOCK):
+        c = min(BLOCK, m - t0)
+        gather_rows(coords_a, frames_a, index_a[t0:], c, ga, gfa)
+        gather_rows(coords_b, frames_b, index_b[t0:], c, gb, gfb)
+        for k in range(c):
+            d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
+            out_i[n], out_j[n], out_d[n] = index_a[t0 + k], index_b[t0 + k], d
+            out_p[0, n], out_p[1, n], out_p[2, n] = p
+            out_q[0, n], out_q[1, n], out_q[2, n] = q
+            out_s[n] = CONTACT
+            n += 1
+    return n
+
+
+@njit(**JIT)
+def reference_distances(bank, rows, pose, near, one, scratch, out):
+    """``out[t]`` (float64): the exact distance of the listed leaf pair ``near[t]`` (local
+    rows of A, of B; ``rows = (a0, b0)`` their first rows in ``bank``) with B at
+    ``pose``, in the query precision (``one``: 1 in it), B's rows moved as the traversal
+    moves them. ``scratch = (local, buffers)`` as in :func:`listed_contacts`."""
+    a0, b0 = rows
+    local, buffers = scratch
+    coords_a = bank.coords[a0:]
+    frames_a = bank.frames[a0:]
+    m = near.shape[0]
+    moving = np.empty(m, np.int64)
+    index_b = np.empty(m, np.int64)
+    u = ZERO
+    for t in range(m):
+        j = near[t, 1]
+        if local[j] < 0:
+            local[j] = u
+            moving[u] = j
+            u += 1
+        index_b[t] = local[j]
+    coords_b, frames_b, _, _ = _packed(bank, b0, moving[:u], pose[0], pose[1], coords_a)
+    for r in range(u):
+        local[moving[r]] = -1
+    ga, gfa, gb, gfb = buffers[0][0], buffers[0][1], buffers[0][2], buffers[0][3]
+    dist = buffers[0][8]
+    index_a = np.empty(m, np.int64)
+    for t in range(m):
+        index_a[t] = near[t, 0]
+    for t0 in range(0, m, BLOCK):
+        c = min(BLOCK, m - t0)
+        gather_rows(coords_a, frames_a, index_a[t0:], c, ga, gfa)
+        gather_rows(coords_b, frames_b, index_b[t0:], c, gb, gfb)
+        exact_paired(ga, gfa, gb, gfb, c, one, dist)
+        for r in range(c):
+            out[t0 + r] = dist[r]
+
+
+@njit(**JIT)
+def _packed(bank, b0, moving, rotation, shift, like):
+    """``(coords (u, 9), frames (u, 14), ε (u,), face (u,))``: B's rows ``b0 + moving[r]``
+    packed into row ``r`` and moved into A's frame (coordinates, frames and ε in the
+    precision of ``like``; :func:`~engine.kernels.collision.rigid.move_kernel` moves
+    each row by the same arithmetic wherever it sits)."""
+    u = moving.shape[0]
+    master_coords = np.empty((u, 9))
+    master_frames = np.empty((u, 14))
+    eps = np.empty(u, like.dtype)
+    face = np.empty(u, np.int32)
+    for r in range(u):
+        j = b0 + moving[r]
+        for c in range(9):
+            master_coords[r, c] = bank.master_coords[j, c]
+        for c in range(14):
+            master_frames[r, c] = bank.master_frames[j, c]
+        eps[r] = bank.epsilon_query[j]
+        face[r] = bank.face[j]
+    coords = np.empty((u, 9), like.dtype)
+    frames = np.empty((u, 14), like.dtype)
+    move_kernel(master_coords, master_frames, np.arange(u), rotation, shift, coords, frames)
+    return coords, frames, eps, face
