@@ -16,15 +16,15 @@ covered triangles (:attr:`~engine.trees.views.TreeViews.distance_bounds`); the e
 distance of any leaf pair is an upper bound on the minimum.
 
 **Search** (one call of :func:`~engine.kernels.collision.distance_search.distance_kernel`,
-which documents it): a greedy descent gives a first upper bound, then a best-first search
-pops node pairs from a heap keyed on their lower bound, computes the cheap bounds first
-(spheres, then the projection on the axis through the two centres, then, with
-:data:`REFINE`, the surrogates' exact distance), unfolds the node with the larger g of a
-pair that survives, and evaluates leaf pairs with the exact kernel
-(:func:`~engine.kernels.geometry.triangle_batch.exact_point`, in ``precision``, on B's
-triangles moved as the contact search moves them). It stops when the smallest bound in
-the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
-intersect).
+whose module documents it): a greedy descent gives a first upper bound; then a best-first
+search pops node pairs from a heap keyed on their lower bound, unfolds the node with the
+larger g, bounds each child pair with its spheres, the projection of the two node
+triangles on the axis through the sphere centres, and the exact distance of the two node
+triangles (vectorised over the children), and evaluates the surviving leaf pairs with
+the exact kernel (:func:`~engine.kernels.geometry.triangle_batch.exact_point`, in
+``precision``, on B's triangles moved as the contact search moves them). It stops when
+the smallest bound in the heap exceeds the best distance, or at a distance of 0 (the
+meshes touch or intersect).
 
 A pair containing the minimum is pruned only if its bound exceeds a candidate by more
 than the rounding margin (256 ulp of the pair's scale,
@@ -47,9 +47,6 @@ from engine.trees.tree import SurrogateTree
 
 __all__ = ["MeshDistance", "mesh_distance"]
 
-REFINE = False
-"""Evaluate a surrogate pair's exact distance (a third lower bound) before unfolding it."""
-
 
 @dataclass(frozen=True)
 class MeshDistance:
@@ -59,12 +56,13 @@ class MeshDistance:
         (0 when they intersect or touch), computed in the query precision
     faces : (2,) int64 — (face of A, face of B) attaining it
     point_a, point_b : (3,) float64 — closest points on those faces, world frame
-    node_pairs : int — node pairs that entered the search's heap (each with a sphere bound)
-    probes : int — exact triangle distances evaluated (leaf pairs, the greedy descent's
-        leaf pair, and surrogate pairs with :data:`REFINE`)
+    node_pairs : int — node pairs bounded (the roots', and every child pair of an
+        unfolded pair)
+    probes : int — leaf pairs whose exact distance and closest points were evaluated
     rounds : int — node pairs unfolded
-    largest_front : int — largest number of node pairs waiting in the heap
-    sphere_pruned : int — child pairs pruned by their bounding spheres before entering it
+    largest_front : int — largest number of node pairs waiting in the search's heap
+    sphere_pruned : int — child pairs dropped by their sphere or projection bound, before
+        any triangle distance
     """
 
     distance: float
@@ -100,66 +98,73 @@ def mesh_distance(
     """
     check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     dtype = check_precision(precision)
-    a, b = _search_arrays(tree_a), _search_arrays(tree_b)
-    coords_a, frames_a = a.rounded(precision)
+    rows_a, rows_b = _node_rows(tree_a), _node_rows(tree_b)
+    prepared_a = rows_a if dtype is np.float64 else _prepared(tree_a, rows_a, precision)
     out_i, out_f = np.empty(ds.N_OUT_I, np.int64), np.empty(ds.N_OUT_F)
     ds.distance_kernel(
-        coords_a, frames_a, a.master_coords, a.node, a.tree,
-        b.master_coords, b.master_frames, b.node, b.tree,
+        prepared_a, rows_a, rows_b,
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation,
-        a.extent, b.extent, ULP[dtype], dtype(1.0), out_i, out_f,
+        ULP[dtype], dtype(1.0), out_i, out_f,
     )  # fmt: skip
     counts = out_i.tolist()
-    return MeshDistance(
-        distance=float(out_f[ds.OUT_DISTANCE]),
-        faces=out_i[: ds.OUT_FACE_B + 1],
-        point_a=out_f[ds.OUT_POINT_A : ds.OUT_POINT_A + 3],
-        point_b=out_f[ds.OUT_POINT_B : ds.OUT_POINT_B + 3],
-        node_pairs=counts[ds.OUT_PAIRS],
-        probes=counts[ds.OUT_EXACT],
-        rounds=counts[ds.OUT_UNFOLDED],
-        largest_front=counts[ds.OUT_LARGEST],
-        sphere_pruned=counts[ds.OUT_SPHERES],
+    return _result(
+        float(out_f[ds.OUT_DISTANCE]),
+        out_i[: ds.OUT_FACE_B + 1],
+        out_f[ds.OUT_POINT_A : ds.OUT_POINT_A + 3],
+        out_f[ds.OUT_POINT_B : ds.OUT_POINT_B + 3],
+        *counts[ds.OUT_PAIRS :],
     )
 
 
-class _SearchArrays:
-    """One tree's arrays as :func:`~engine.kernels.collision.distance_search.distance_kernel`
-    reads them (``N`` nodes, body frame; built once per tree, see :func:`_search_arrays`).
+_FIELDS = tuple(MeshDistance.__dataclass_fields__)
 
-    master_coords, master_frames : (N, 9), (N, 14) float64 — prepared triangles, row-major
-    node : (N, 5) float64 — bounding sphere centre and radius of the covered triangles, g
-    tree : (N, 3) int64 — first child, child count (0 for a leaf), face (−1 for a surrogate)
-    extent : float — largest absolute body-frame coordinate
-    """
 
-    def __init__(self, tree: SurrogateTree) -> None:
+def _result(*values) -> MeshDistance:
+    """A :class:`MeshDistance` of ``values`` in field order, without the frozen
+    dataclass's ``__init__`` (one ``object.__setattr__`` per field: about 3 µs of a query
+    that may take 10)."""
+    out = object.__new__(MeshDistance)
+    out.__dict__.update(zip(_FIELDS, values, strict=True))
+    return out
+
+
+_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _node_rows(tree: SurrogateTree) -> np.ndarray:
+    """``(N, N_COLUMNS)`` float64 node rows of ``tree`` as
+    :func:`~engine.kernels.collision.distance_search.distance_kernel` reads them (see
+    :mod:`~engine.kernels.collision.distance_search`), built on first use, kept with it."""
+    rows = _ROWS.get(tree)
+    if rows is None:
         views = tree.views
-        master = views.geometry.master
-        self._geometry = views.geometry
-        self.master_coords, self.master_frames = master.coords_rm, master.frames_rm
-        bounds = views.distance_bounds
-        self.node = np.ascontiguousarray(
-            np.column_stack([bounds.centre, bounds.radius, bounds.gap]), dtype=np.float64
-        )
-        count = np.where(bounds.leaf, 0, bounds.child_count)
-        self.tree = np.ascontiguousarray(
-            np.column_stack([bounds.first_child, count, tree.face]), dtype=np.int64
-        )
-        self.extent = float(views.geometry.extent)
-
-    def rounded(self, precision: str) -> tuple[np.ndarray, np.ndarray]:
-        """``(coords (N, 9), frames (N, 14))`` in ``precision``, row-major."""
-        rows = self._geometry.node_set(precision, False)
-        return rows.coords_rm, rows.frames_rm
+        master, bounds = views.geometry.master, views.distance_bounds
+        rows = np.empty((len(tree), ds.N_COLUMNS))
+        rows[:, ds.COORDS : ds.COORDS + 9] = master.coords_rm
+        rows[:, ds.FRAMES : ds.FRAMES + 14] = master.frames_rm
+        rows[:, ds.CENTRE : ds.CENTRE + 3] = bounds.centre
+        rows[:, ds.RADIUS] = bounds.radius
+        rows[:, ds.GAP] = bounds.gap
+        rows[:, ds.FIRST] = bounds.first_child
+        rows[:, ds.COUNT] = np.where(bounds.leaf, 0, bounds.child_count)
+        rows[:, ds.FACE] = tree.face
+        rows[:, ds.EXTENT] = views.geometry.extent
+        rows.flags.writeable = False
+        rows = _ROWS[tree] = rows
+    return rows
 
 
-_ARRAYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_PREPARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _search_arrays(tree: SurrogateTree) -> _SearchArrays:
-    """The :class:`_SearchArrays` of ``tree``, built on first use and kept with it."""
-    found = _ARRAYS.get(tree)
+def _prepared(tree: SurrogateTree, rows: np.ndarray, precision: str) -> np.ndarray:
+    """``(N, 23)`` A's prepared triangles and frames in ``precision`` (float32), row-major:
+    the float64 rows rounded, as :meth:`~engine.trees.views.TreeGeometry.node_set` rounds
+    them; built on first use, kept with the tree."""
+    found = _PREPARED.get(tree)
     if found is None:
-        found = _ARRAYS[tree] = _SearchArrays(tree)
+        nodes = tree.views.geometry.node_set(precision, False)
+        found = np.ascontiguousarray(np.hstack([nodes.coords_rm, nodes.frames_rm]))
+        found.flags.writeable = False
+        _PREPARED[tree] = found
     return found

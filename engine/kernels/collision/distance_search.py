@@ -2,50 +2,50 @@
 surrogate trees, in one call (the kernel of :func:`engine.collision.proximity.mesh_distance`).
 
 The query runs in body A's frame: B's sphere centres are moved by the relative pose
-``pose_a⁻¹ ∘ pose_b`` as they are read, B's triangles by
-:func:`~engine.kernels.collision.rigid.move_kernel` (the contact search's mover, so the
-exact kernel sees the bits it sees there) when their exact distance is evaluated.
+``pose_a⁻¹ ∘ pose_b`` as they are read, and B's triangles when their exact distance is
+evaluated, with the arithmetic of :func:`~engine.kernels.collision.rigid.move_kernel`
+(the contact search's mover: the exact kernel sees the same bits as there).
 
-**Lower bounds** of a node pair (a, b), every one below the distance of every pair of
-covered faces (g = surrogate ε − leaf ε, 0 for a leaf; every point of a covered face lies
-within g of the node's triangle, see :mod:`engine.collision.proximity`):
+**Lower bounds** of a node pair (a, b), each below the distance of every pair of faces
+they cover (g = surrogate ε − leaf ε, 0 for a leaf; every point of a covered face lies
+within g of the node's triangle, see :mod:`engine.collision.proximity`), cheapest first:
 
-0. spheres: ``|c_a − c_b| − r_a − r_b`` (bounding spheres of the covered faces);
-1. projection: the node triangles projected on the axis through the two centres, the gap
-   between the two intervals less ``g_a + g_b`` (a separating-axis bound: 6 dot products);
-2. surrogates (optional, ``refine``): the exact distance of the two node triangles less
-   ``g_a + g_b``.
+1. spheres: ``|c_a − c_b| − r_a − r_b`` (bounding spheres of the covered faces);
+2. projection: the gap between the two node triangles projected on the axis through the
+   two centres, less ``g_a + g_b`` (a separating axis: 6 dot products);
+3. surrogates: the exact distance of the two node triangles less ``g_a + g_b``
+   (:func:`~engine.kernels.geometry.triangle_batch.exact_paired`, vectorised over the
+   children of a pair, in the query precision).
 
-A leaf pair's last stage is its exact distance (:func:`~engine.kernels.geometry.
-triangle_batch.exact_point`, in the query precision): a candidate for the minimum.
+**Search.** A greedy descent (the child with the smallest sphere bound, down to a leaf
+pair) gives a first upper bound: the best distance. A binary heap holds node pairs with
+a surrogate, keyed on their lower bound clamped at 0; ties pop the most recently pushed
+first, so that while bounds are ≤ 0 the search runs depth first, nearest child first,
+towards a crossing pair. The top pair is popped; if its bound, less the rounding
+margin, exceeds the best distance the search ends (every other bound is at least as
+large). Else the pair's node with the larger g (never a leaf) is unfolded: each child
+pair is bounded by 1, 2 and 3 in turn and dropped at the first bound that exceeds the best
+distance by more than the margin. A surviving leaf pair gets its exact distance and
+closest points (:func:`~engine.kernels.geometry.triangle_batch.exact_point`): a
+candidate; the others are pushed, the largest bound first. The search also ends at a
+candidate of distance 0 (the meshes touch or intersect).
 
-**Search.** A greedy descent (the child pair with the smallest sphere bound, down to a
-leaf pair) gives a first upper bound. Then a binary heap of node pairs keyed on their
-lower bound clamped at 0 (ties: the most recently pushed first, so that where bounds are
-still ≤ 0 the search runs depth first, nearest child first, towards a crossing pair) is
-popped: an entry whose bound, less the rounding margin, exceeds the best distance ends
-the search (every other entry's bound is at least as large); otherwise its next bound
-is computed, and the entry is pushed back when that bound exceeds the heap's top,
-else processed at once (lazy evaluation: the cheap bound first). A surrogate pair past
-its last bound stage is unfolded: the node with the larger g (a leaf never) is replaced
-by its children, and a child pair enters the heap only if its sphere bound passes the
-same test. The search also ends when a leaf pair has distance 0.
-
-A pair is pruned only when a bound exceeds the best candidate by more than ``margin``
+A pair is dropped only when a bound exceeds the best candidate by more than ``margin``
 (:func:`~engine.kernels.collision.batch.query_margin`: 256 ulp of the pair's scale, which
 bounds the rounding of the bounds and of the exact kernel), so the result is the minimum
-of the exact kernel over every face pair, evaluated on the same moved triangles.
+of ``exact_point`` over every face pair (A's rows, B's rows moved), bit for bit.
 
-Arrays (``N`` nodes of a tree, node order, root at row 0):
+Node arrays of a tree (``N`` nodes, node order, root at row 0), row-major:
 
-* ``coords (N, 9)``, ``frames (N, 14)`` — the nodes' prepared triangles, row-major
-  (:class:`~engine.geometry.distance.TriangleSet`): A's in the query dtype, B's in float64
-  (body frame; moved into A's frame and rounded to the query dtype when evaluated);
-* ``master (N, 9)`` float64 — A's triangles in float64 (the bounds' arithmetic);
-* ``node (N, 5)`` float64 — bounding sphere centre (0–2) and radius (3) of the covered
-  faces, g (4);
-* ``tree (N, 3)`` int64 — first child, child count (0 for a leaf), face (−1 for a
-  surrogate).
+* ``rows (N, N_COLUMNS)`` float64 — per node: its prepared triangle (columns
+  ``COORDS:COORDS + 9``) and frame (``FRAMES:FRAMES + 14``,
+  :class:`~engine.geometry.distance.TriangleSet`), body frame; the bounding sphere of
+  the covered faces (centre ``CENTRE:CENTRE + 3``, radius ``RADIUS``); ``GAP`` g; then
+  ``FIRST`` (first child), ``COUNT`` (child count, 0 for a leaf) and ``FACE`` (the face
+  of a leaf, −1 for a surrogate), integers stored exactly; ``EXTENT`` the tree's largest
+  absolute body-frame coordinate (every row; the rounding margin's scale);
+* ``prepared (N, ≥ 23)`` — A's triangles and frames (the same columns) in the query
+  dtype: ``rows`` itself for float64.
 """
 
 from __future__ import annotations
@@ -57,12 +57,16 @@ from engine.kernels.collision.batch import query_margin, relative_pose
 from engine.kernels.geometry.triangle_batch import ZERO, exact_paired, exact_point
 from engine.kernels.jit import EXACT_JIT, INLINE, JIT, sqrt
 
+# Columns of the node rows.
+COORDS, FRAMES, CENTRE, RADIUS, GAP, FIRST, COUNT, FACE, EXTENT = 0, 9, 23, 26, 27, 28, 29, 30, 31
+N_COLUMNS = 32
 # Slots of ``out_i`` (int64) and ``out_f`` (float64) written by :func:`distance_kernel`.
-OUT_FACE_A, OUT_FACE_B, OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED, OUT_LARGEST, OUT_SPHERES = range(7)
+OUT_FACE_A, OUT_FACE_B, OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED, OUT_LARGEST, OUT_PRUNED = range(7)
 N_OUT_I = 7
-OUT_DISTANCE, OUT_POINT_A, OUT_POINT_B = 0, 1, 4  # distance, then two (3,) world points
+OUT_DISTANCE, OUT_POINT_A, OUT_POINT_B = 0, 1, 4  # the distance, then two (3,) points
 N_OUT_F = 7
 HEAP_START = 256  # initial capacity of the heap (doubled when full)
+CHILDREN_START = 16  # initial capacity of the gathered child pairs (grown when needed)
 
 
 @njit(**JIT)
@@ -142,43 +146,70 @@ def _turned(r, x, y, z):
     )
 
 
-@njit(**JIT)
-def _apart(ax, ay, az, bx, by, bz):
-    """``b − a`` and its length."""
-    dx, dy, dz = bx - ax, by - ay, bz - az
-    return dx, dy, dz, sqrt(dx * dx + dy * dy + dz * dz)
+@njit(**INLINE)
+def _axis(a, i, b, j, r, s):
+    """``(u, |u|)``: from the sphere centre of A's node ``i`` to that of B's node ``j``."""
+    cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
+    cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
+    cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
+    ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
+    return ux, uy, uz, sqrt(ux * ux + uy * uy + uz * uz)
 
 
 @njit(**INLINE)
-def _sphere_bound(a_node, i, b_node, j, r, s):
-    """Sphere bound of the pair (i, j); ``r``, ``s`` as in :func:`_moved`."""
-    cx = r[0] * b_node[j, 0] + r[1] * b_node[j, 1] + r[2] * b_node[j, 2] + s[0]
-    cy = r[3] * b_node[j, 0] + r[4] * b_node[j, 1] + r[5] * b_node[j, 2] + s[1]
-    cz = r[6] * b_node[j, 0] + r[7] * b_node[j, 1] + r[8] * b_node[j, 2] + s[2]
-    length = _apart(a_node[i, 0], a_node[i, 1], a_node[i, 2], cx, cy, cz)[3]
-    return length - a_node[i, 3] - b_node[j, 3]
+def _bounds(a, i, b, j, r, s, best, margin):
+    """Sphere bound of the pair (i, j), then (unless that one drops the pair, ``bound −
+    margin > best``) the larger of it and the projection bound."""
+    ux, uy, uz, length = _axis(a, i, b, j, r, s)
+    sphere = length - a[i, RADIUS] - b[j, RADIUS]
+    if sphere - margin > best or not length > 0.0:
+        return sphere
+    ux, uy, uz = ux / length, uy / length, uz / length
+    # u in B's frame (Rᵀu) and the shift's share, so that B's body-frame rows project
+    vx = r[0] * ux + r[3] * uy + r[6] * uz
+    vy = r[1] * ux + r[4] * uy + r[7] * uz
+    vz = r[2] * ux + r[5] * uy + r[8] * uz
+    offset = s[0] * ux + s[1] * uy + s[2] * uz
+    a0 = a[i, 0] * ux + a[i, 1] * uy + a[i, 2] * uz
+    a1 = a[i, 3] * ux + a[i, 4] * uy + a[i, 5] * uz
+    a2 = a[i, 6] * ux + a[i, 7] * uy + a[i, 8] * uz
+    b0 = b[j, 0] * vx + b[j, 1] * vy + b[j, 2] * vz + offset
+    b1 = b[j, 3] * vx + b[j, 4] * vy + b[j, 5] * vz + offset
+    b2 = b[j, 6] * vx + b[j, 7] * vy + b[j, 8] * vz + offset
+    lo_a, hi_a = min(a0, min(a1, a2)), max(a0, max(a1, a2))
+    lo_b, hi_b = min(b0, min(b1, b2)), max(b0, max(b1, b2))
+    gap = max(lo_b - hi_a, lo_a - hi_b) - a[i, GAP] - b[j, GAP]
+    return max(sphere, gap)
 
 
 @njit(**INLINE)
-def _gather_a(a_coords, a_frames, i, k, ga, gfa):
+def _gather_a(prepared, i, k, ga, gfa):
     """Column ``k`` of ``ga (9, m)``, ``gfa (14, m)``: A's node ``i``."""
     for c in range(9):
-        ga[c, k] = a_coords[i, c]
+        ga[c, k] = prepared[i, COORDS + c]
     for c in range(14):
-        gfa[c, k] = a_frames[i, c]
+        gfa[c, k] = prepared[i, FRAMES + c]
 
 
 @njit(**INLINE)
-def _gather_b(b_coords, b_frames, j, r, s, k, gb, gfb):
+def _gather_b(b, j, r, s, k, gb, gfb):
     """Column ``k`` of ``gb (9, m)``, ``gfb (14, m)``: B's node ``j`` moved into A's frame
     as :func:`~engine.kernels.collision.rigid.move_kernel` moves it, rounded to their dtype."""
     for v in range(3):
-        x, y, z = _moved(r, s, b_coords[j, 3 * v], b_coords[j, 3 * v + 1], b_coords[j, 3 * v + 2])
+        x, y, z = _moved(r, s, b[j, 3 * v], b[j, 3 * v + 1], b[j, 3 * v + 2])
         gb[3 * v, k], gb[3 * v + 1, k], gb[3 * v + 2, k] = x, y, z
-        x, y, z = _turned(r, b_frames[j, 3 * v], b_frames[j, 3 * v + 1], b_frames[j, 3 * v + 2])
+        f = FRAMES + 3 * v
+        x, y, z = _turned(r, b[j, f], b[j, f + 1], b[j, f + 2])
         gfb[3 * v, k], gfb[3 * v + 1, k], gfb[3 * v + 2, k] = x, y, z
     for c in range(9, 14):
-        gfb[c, k] = b_frames[j, c]
+        gfb[c, k] = b[j, FRAMES + c]
+
+
+@njit(**JIT)
+def _copy_column(g, k0, k):
+    """``g[:, k] = g[:, k0]``."""
+    for c in range(g.shape[0]):
+        g[c, k] = g[c, k0]
 
 
 @njit(**JIT)
@@ -189,88 +220,66 @@ def _split_a(count_a, gap_a, count_b, gap_b):
 
 @njit(**JIT)
 def distance_kernel(
-    a_coords,
-    a_frames,
-    a_master,
-    a_node,
-    a_tree,
-    b_coords,
-    b_frames,
-    b_node,
-    b_tree,
-    position_a,
-    orientation_a,
-    position_b,
-    orientation_b,
-    extent_a,
-    extent_b,
-    ulp,
-    one,
-    out_i,
-    out_f,
+    prepared_a, a, b, position_a, orientation_a, position_b, orientation_b, ulp, one, out_i, out_f
 ):
-    """Minimum distance between body A (its nodes at ``position_a (3,)``, ``orientation_a
-    (4,)``) and body B (see the module docstring for the node arrays).
+    """Minimum distance between body A (node rows ``a``, its triangles in the query dtype
+    ``prepared_a``; see the module docstring) at ``position_a (3,)``, ``orientation_a
+    (4,)`` (unit quaternion w, x, y, z) and body B (``b``) at ``position_b``,
+    ``orientation_b``; ``ulp`` (float), ``one`` (1 in the query dtype): machine epsilon
+    and unit of the query dtype.
 
-    ``extent_a``, ``extent_b`` (float): largest body-frame coordinate of each tree (the
-    rounding margin's scale); ``ulp`` (float): machine epsilon of the query dtype, the
-    dtype of ``a_coords``, ``a_frames`` and of ``one``; ``refine`` (bool): evaluate the
-    (unused) .
-
-    Writes ``out_i (N_OUT_I,)`` int64: faces of A and B attaining the minimum, node pairs
-    that entered the heap, exact evaluations, pairs unfolded, largest heap, child pairs
-    pruned by their spheres; ``out_f (N_OUT_F,)`` float64: the distance, then its closest
-    points on A and on B in the world frame.
+    Writes ``out_i (N_OUT_I,)`` int64: the faces of A and of B attaining the minimum, node
+    pairs bounded (the root's and every child pair's), exact evaluations of leaf pairs
+    (``exact_point``), pairs unfolded, the largest heap, child pairs dropped by their
+    sphere or projection bound; ``out_f (N_OUT_F,)`` float64: the distance (in the query
+    dtype), then its closest points on A and on B, world frame.
     """
     ra, rotation, shift = relative_pose(position_a, orientation_a, position_b, orientation_b)
-    margin = query_margin(extent_a, extent_b, shift, ulp)
+    margin = query_margin(a[0, EXTENT], b[0, EXTENT], shift, ulp)
     rr = rotation
     r = (rr[0, 0], rr[0, 1], rr[0, 2], rr[1, 0], rr[1, 1], rr[1, 2], rr[2, 0], rr[2, 1], rr[2, 2])
     s = (shift[0], shift[1], shift[2])
-    dtype = a_coords.dtype
-    cap = 16  # gathered child pairs (columns), grown to the largest child count met
+    dtype = prepared_a.dtype
+    cap = CHILDREN_START
     ga, gfa = np.empty((9, cap), dtype), np.empty((14, cap), dtype)
     gb, gfb = np.empty((9, cap), dtype), np.empty((14, cap), dtype)
     dist = np.empty(cap, dtype)
     child_low = np.empty(cap)
     child_index = np.empty(cap, np.int64)
-    pairs = exact = unfolded = largest = pruned = ZERO
+    pairs = exact = unfolded = pruned = ZERO
 
     # greedy descent (the child with the smallest sphere bound): a first upper bound
     i, j = ZERO, ZERO
-    while a_tree[i, 1] > 0 or b_tree[j, 1] > 0:
-        split = _split_a(a_tree[i, 1], a_node[i, 4], b_tree[j, 1], b_node[j, 4])
-        first, count = (a_tree[i, 0], a_tree[i, 1]) if split else (b_tree[j, 0], b_tree[j, 1])
+    while a[i, COUNT] > 0 or b[j, COUNT] > 0:
+        split = _split_a(a[i, COUNT], a[i, GAP], b[j, COUNT], b[j, GAP])
+        first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
+        count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
         pick, low = first, np.inf
         for c in range(first, first + count):
-            bound = (
-                _sphere_bound(a_node, c, b_node, j, r, s)
-                if split
-                else _sphere_bound(a_node, i, b_node, c, r, s)
-            )
+            ci, cj = (c, j) if split else (i, c)
+            _, _, _, length = _axis(a, ci, b, cj, r, s)
+            bound = length - a[ci, RADIUS] - b[cj, RADIUS]
             if bound < low:
                 pick, low = c, bound
         if split:
             i = pick
         else:
             j = pick
-    _gather_a(a_coords, a_frames, i, ZERO, ga, gfa)
-    _gather_b(b_coords, b_frames, j, r, s, ZERO, gb, gfb)
+    _gather_a(prepared_a, i, ZERO, ga, gfa)
+    _gather_b(b, j, r, s, ZERO, gb, gfb)
     d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
     exact += 1
     best, best_i, best_j, best_p, best_q = np.float64(d), i, j, p, q
 
-    # best-first search over pairs with a surrogate (leaf pairs are resolved as they are met)
-    size = HEAP_START
-    key = np.empty(size)
-    entry_a = np.empty(size, np.int64)
-    entry_b = np.empty(size, np.int64)
-    heap = np.empty(size, np.int64)
-    entries = ZERO
-    size = ZERO
+    # best-first search over the pairs with a surrogate
+    key = np.empty(HEAP_START)
+    entry_a = np.empty(HEAP_START, np.int64)
+    entry_b = np.empty(HEAP_START, np.int64)
+    heap = np.empty(HEAP_START, np.int64)
+    entries = size = largest = ZERO
     pairs += 1
-    if a_tree[0, 1] > 0 or b_tree[0, 1] > 0:
-        key[0] = max(_sphere_bound(a_node, 0, b_node, 0, r, s), 0.0)
+    if best > 0.0 and (a[0, COUNT] > 0 or b[0, COUNT] > 0):
+        key[0] = max(_axis(a, 0, b, 0, r, s)[3] - a[0, RADIUS] - b[0, RADIUS], 0.0)
         entry_a[0], entry_b[0] = 0, 0
         entries = 1
         size = _push(heap, size, key, ZERO)
@@ -281,43 +290,42 @@ def distance_kernel(
             break
         size = _pop(heap, size, key)
         i, j = entry_a[e], entry_b[e]
-        # unfold the node with the larger g; bound the children
         unfolded += 1
-        split = _split_a(a_tree[i, 1], a_node[i, 4], b_tree[j, 1], b_node[j, 4])
-        first, count = (a_tree[i, 0], a_tree[i, 1]) if split else (b_tree[j, 0], b_tree[j, 1])
+        split = _split_a(a[i, COUNT], a[i, GAP], b[j, COUNT], b[j, GAP])
+        first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
+        count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
         if count > child_index.shape[0]:
             ga, gfa = np.empty((9, count), dtype), np.empty((14, count), dtype)
             gb, gfb = np.empty((9, count), dtype), np.empty((14, count), dtype)
             dist, child_low = np.empty(count, dtype), np.empty(count)
             child_index = np.empty(count, np.int64)
-        m = 0
+        m = 0  # children past bounds 1 and 2, gathered for bound 3
         for c in range(first, first + count):
-            low = (
-                _sphere_bound(a_node, c, b_node, j, r, s)
-                if split
-                else _sphere_bound(a_node, i, b_node, c, r, s)
-            )
+            ci, cj = (c, j) if split else (i, c)
+            low = _bounds(a, ci, b, cj, r, s, best, margin)
             if low - margin > best:
                 pruned += 1
                 continue
-            if split:
-                _gather_a(a_coords, a_frames, c, m, ga, gfa)
-                _gather_b(b_coords, b_frames, j, r, s, m, gb, gfb)
+            _gather_a(prepared_a, ci, m, ga, gfa)
+            if split and m > 0:  # the same B node: moved once
+                _copy_column(gb, 0, m)
+                _copy_column(gfb, 0, m)
             else:
-                _gather_a(a_coords, a_frames, i, m, ga, gfa)
-                _gather_b(b_coords, b_frames, c, r, s, m, gb, gfb)
+                _gather_b(b, cj, r, s, m, gb, gfb)
             child_low[m], child_index[m] = low, c
             m += 1
-        pairs += m
+        pairs += count
+        if m == 0:
+            continue
         exact_paired(ga, gfa, gb, gfb, m, one, dist)
         kept = 0
         for k in range(m):
             c = child_index[k]
             ci, cj = (c, j) if split else (i, c)
-            low = max(child_low[k], np.float64(dist[k]) - a_node[ci, 4] - b_node[cj, 4])
+            low = max(child_low[k], np.float64(dist[k]) - a[ci, GAP] - b[cj, GAP])
             if low - margin > best:
                 continue
-            if a_tree[ci, 1] == 0 and b_tree[cj, 1] == 0:  # a leaf pair: a candidate
+            if a[ci, COUNT] == 0 and b[cj, COUNT] == 0:  # a leaf pair: a candidate
                 d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
                 exact += 1
                 if d < best:
@@ -334,7 +342,7 @@ def distance_kernel(
             key, heap = _grown(key, grow), _grown(heap, grow)
             entry_a, entry_b = _grown(entry_a, grow), _grown(entry_b, grow)
         for t in range(kept):
-            if child_low[t] - margin > best:  # best may have dropped since
+            if child_low[t] - margin > best:  # the best distance may have dropped since
                 continue
             c = child_index[t]
             key[entries] = max(child_low[t], 0.0)
@@ -343,9 +351,9 @@ def distance_kernel(
             entries += 1
         largest = max(largest, size)
 
-    out_i[OUT_FACE_A], out_i[OUT_FACE_B] = a_tree[best_i, 2], b_tree[best_j, 2]
+    out_i[OUT_FACE_A], out_i[OUT_FACE_B] = np.int64(a[best_i, FACE]), np.int64(b[best_j, FACE])
     out_i[OUT_PAIRS], out_i[OUT_EXACT], out_i[OUT_UNFOLDED] = pairs, exact, unfolded
-    out_i[OUT_LARGEST], out_i[OUT_SPHERES] = largest, pruned
+    out_i[OUT_LARGEST], out_i[OUT_PRUNED] = largest, pruned
     out_f[OUT_DISTANCE] = best
     pa = np.float64(best_p[0]), np.float64(best_p[1]), np.float64(best_p[2])
     pb = np.float64(best_q[0]), np.float64(best_q[1]), np.float64(best_q[2])
