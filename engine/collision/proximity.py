@@ -18,13 +18,16 @@ distance of any leaf pair is an upper bound on the minimum.
 **Search** (one call of :func:`~engine.kernels.collision.distance_search.distance_kernel`,
 whose module documents it): a greedy descent gives a first upper bound; then a best-first
 search pops node pairs from a heap keyed on their lower bound, unfolds the node with the
-larger g, bounds each child pair with its spheres, the projection of the two node
+larger bounding sphere (both nodes when their spheres are of a size and the pair is
+apart), bounds each child pair with its spheres, the projection of the two node
 triangles on the axis through the sphere centres, and the exact distance of the two node
-triangles (vectorised over the children), and evaluates the surviving leaf pairs with
-the exact kernel (:func:`~engine.kernels.geometry.triangle_batch.exact_point`, in
-``precision``, on B's triangles moved as the contact search moves them). It stops when
-the smallest bound in the heap exceeds the best distance, or at a distance of 0 (the
-meshes touch or intersect).
+triangles less their g (vectorised over the children of up to 8 pairs), and evaluates
+the surviving leaf pairs with the exact kernel
+(:func:`~engine.kernels.geometry.triangle_batch.exact_point`, in ``precision``, on B's
+triangles moved as the contact search moves them). It stops when the smallest bound in
+the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
+intersect). The host validates, looks up the trees' packed node rows (built once per
+tree), calls the kernel once and wraps its output.
 
 A pair containing the minimum is pruned only if its bound exceeds a candidate by more
 than the rounding margin (256 ulp of the pair's scale,

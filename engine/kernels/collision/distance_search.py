@@ -21,14 +21,21 @@ within g of the node's triangle, see :mod:`engine.collision.proximity`), cheapes
 pair) gives a first upper bound: the best distance. A binary heap holds node pairs with
 a surrogate, keyed on their lower bound clamped at 0; ties pop the most recently pushed
 first, so that while bounds are ≤ 0 the search runs depth first, nearest child first,
-towards a crossing pair. The top pair is popped; if its bound, less the rounding
-margin, exceeds the best distance the search ends (every other bound is at least as
-large). Else the pair's node with the larger g (never a leaf) is unfolded: each child
-pair is bounded by 1, 2 and 3 in turn and dropped at the first bound that exceeds the best
-distance by more than the margin. A surviving leaf pair gets its exact distance and
-closest points (:func:`~engine.kernels.geometry.triangle_batch.exact_point`): a
-candidate; the others are pushed, the largest bound first. The search also ends at a
-candidate of distance 0 (the meshes touch or intersect).
+towards a crossing pair. The top pair is popped; if its bound, less the rounding margin,
+exceeds the best distance the search ends (every other bound is at least as large).
+Else the pair is unfolded: its node with the larger sphere (never a leaf) is replaced by
+its children, and when the pair's bound is positive (best first: nothing to gain from
+going deep) the other node too if it is a surrogate with a sphere at least ``BOTH`` times
+as large. Up to ``POPS`` pairs with a positive bound are popped and unfolded together
+(one with a bound ≤ 0 alone: depth first), so that their child pairs get bound 3 in one
+vectorised call. Each child pair is bounded by 1, 2 and 3 in turn and dropped at the
+first bound that exceeds the best distance by more than the margin. A surviving leaf
+pair gets its exact distance and closest points
+(:func:`~engine.kernels.geometry.triangle_batch.exact_point`): a candidate; the others are
+pushed, the largest bound first. The search also ends at a candidate of distance 0 (the
+meshes touch or intersect). The unfolding rules and ``BOTH``, ``POPS`` gave the shortest
+times on the cases of ``benchmarks/peers.py`` among those tried (the larger g, the
+larger sphere; one node or both; one pair or 8 at a time).
 
 A pair is dropped only when a bound exceeds the best candidate by more than ``margin``
 (:func:`~engine.kernels.collision.batch.query_margin`: 256 ulp of the pair's scale, which
@@ -66,7 +73,9 @@ N_OUT_I = 7
 OUT_DISTANCE, OUT_POINT_A, OUT_POINT_B = 0, 1, 4  # the distance, then two (3,) points
 N_OUT_F = 7
 HEAP_START = 256  # initial capacity of the heap (doubled when full)
-CHILDREN_START = 16  # initial capacity of the gathered child pairs (grown when needed)
+CHILDREN_START = 64  # initial capacity of the gathered child pairs (grown when needed)
+BOTH = 0.7  # unfold both nodes of a pair when their spheres are this close in size
+POPS = 8  # pairs unfolded together (their children's exact bounds in one vectorised call)
 
 
 @njit(**JIT)
@@ -75,6 +84,22 @@ def _grown(array, size):
     out = np.empty(size, array.dtype)
     out[: array.shape[0]] = array
     return out
+
+
+@njit(**JIT)
+def _grown_rows(array, size):
+    """A copy of ``array (k, n)`` with room for ``size > n`` columns."""
+    out = np.empty((array.shape[0], size), array.dtype)
+    out[:, : array.shape[1]] = array
+    return out
+
+
+@njit(**JIT)
+def _gathered(m, dtype):
+    """Buffers for ``m`` gathered pairs, one allocation: ``(A (9, m), A's frames (14, m),
+    B (9, m), B's frames (14, m), distances (m,))``, C-contiguous views, ``dtype``."""
+    g = np.empty((47, m), dtype)
+    return g[0:9], g[9:23], g[23:32], g[32:46], g[46]
 
 
 @njit(**JIT)
@@ -205,7 +230,7 @@ def _gather_b(b, j, r, s, k, gb, gfb):
         gfb[c, k] = b[j, FRAMES + c]
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _copy_column(g, k0, k):
     """``g[:, k] = g[:, k0]``."""
     for c in range(g.shape[0]):
@@ -213,9 +238,28 @@ def _copy_column(g, k0, k):
 
 
 @njit(**JIT)
-def _split_a(count_a, gap_a, count_b, gap_b):
-    """Unfold A's node of a pair, not both leaves (child counts, g): the larger g."""
-    return count_a > 0 and (count_b == 0 or gap_a >= gap_b)
+def _split_a(count_a, radius_a, count_b, radius_b):
+    """Unfold A's node of a pair, not both leaves (child counts, sphere radii): the larger
+    sphere."""
+    return count_a > 0 and (count_b == 0 or radius_a >= radius_b)
+
+
+@njit(**JIT)
+def _unfolded(a, i, b, j, apart):
+    """``(first, count)`` of A's, then of B's, nodes that replace the pair (i, j), not both
+    leaves: the node with the larger sphere unfolds, and with ``apart`` (the pair's bound
+    is positive: best first, not depth first) the other one too when it is a surrogate
+    whose sphere is at least ``BOTH`` times as large; a node that stays is its own
+    ``(i, 1)``."""
+    ra, rb = a[i, RADIUS], b[j, RADIUS]
+    split = _split_a(a[i, COUNT], ra, b[j, COUNT], rb)
+    both = apart and a[i, COUNT] > 0 and b[j, COUNT] > 0 and min(ra, rb) >= BOTH * max(ra, rb)
+    first_a, count_a, first_b, count_b = i, np.int64(1), j, np.int64(1)
+    if split or both:
+        first_a, count_a = np.int64(a[i, FIRST]), np.int64(a[i, COUNT])
+    if not split or both:
+        first_b, count_b = np.int64(b[j, FIRST]), np.int64(b[j, COUNT])
+    return first_a, count_a, first_b, count_b
 
 
 @njit(**JIT)
@@ -240,18 +284,14 @@ def distance_kernel(
     r = (rr[0, 0], rr[0, 1], rr[0, 2], rr[1, 0], rr[1, 1], rr[1, 2], rr[2, 0], rr[2, 1], rr[2, 2])
     s = (shift[0], shift[1], shift[2])
     dtype = prepared_a.dtype
-    cap = CHILDREN_START
-    ga, gfa = np.empty((9, cap), dtype), np.empty((14, cap), dtype)
-    gb, gfb = np.empty((9, cap), dtype), np.empty((14, cap), dtype)
-    dist = np.empty(cap, dtype)
-    child_low = np.empty(cap)
-    child_index = np.empty(cap, np.int64)
+    ga, gfa, gb, gfb, dist = _gathered(CHILDREN_START, dtype)
     pairs = exact = unfolded = pruned = ZERO
 
-    # greedy descent (the child with the smallest sphere bound): a first upper bound
+    # greedy descent (the larger sphere unfolds, to the child with the smallest sphere
+    # bound): a first upper bound
     i, j = ZERO, ZERO
     while a[i, COUNT] > 0 or b[j, COUNT] > 0:
-        split = _split_a(a[i, COUNT], a[i, GAP], b[j, COUNT], b[j, GAP])
+        split = _split_a(a[i, COUNT], a[i, RADIUS], b[j, COUNT], b[j, RADIUS])
         first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
         count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
         pick, low = first, np.inf
@@ -272,56 +312,70 @@ def distance_kernel(
     best, best_i, best_j, best_p, best_q = np.float64(d), i, j, p, q
 
     # best-first search over the pairs with a surrogate
-    key = np.empty(HEAP_START)
-    entry_a = np.empty(HEAP_START, np.int64)
-    entry_b = np.empty(HEAP_START, np.int64)
-    heap = np.empty(HEAP_START, np.int64)
     entries = size = largest = ZERO
     pairs += 1
-    if best > 0.0 and (a[0, COUNT] > 0 or b[0, COUNT] > 0):
+    search = best > 0.0 and (a[0, COUNT] > 0 or b[0, COUNT] > 0)
+    room = HEAP_START if search else 1
+    key = np.empty(room)
+    ints = np.empty((3, room), np.int64)
+    entry_a, entry_b, heap = ints[0], ints[1], ints[2]
+    room = CHILDREN_START if search else 1
+    child_low = np.empty(room)  # the gathered child pairs: bound, A's node, B's node
+    child_ab = np.empty((2, room), np.int64)
+    child_a, child_b = child_ab[0], child_ab[1]
+    if search:
         key[0] = max(_axis(a, 0, b, 0, r, s)[3] - a[0, RADIUS] - b[0, RADIUS], 0.0)
         entry_a[0], entry_b[0] = 0, 0
         entries = 1
         size = _push(heap, size, key, ZERO)
         largest = 1
     while size > 0 and best > 0.0:
-        e = heap[0]
-        if key[e] - margin > best:
+        # pop up to POPS pairs with a positive bound (one with a bound ≤ 0 alone: depth
+        # first; fewer when their children would overflow the buffers), bound their
+        # children with spheres and projections, gather the survivors
+        m = popped = 0
+        while size > 0 and popped < POPS:
+            e = heap[0]
+            if key[e] - margin > best or (popped > 0 and key[e] <= 0.0):
+                break
+            i, j = entry_a[e], entry_b[e]
+            first_a, count_a, first_b, count_b = _unfolded(a, i, b, j, key[e] > 0.0)
+            count = count_a * count_b
+            if m + count > child_a.shape[0]:
+                if m > 0:
+                    break
+                ga, gfa, gb, gfb, dist = _gathered(count, dtype)
+                child_low = np.empty(count)
+                child_ab = np.empty((2, count), np.int64)
+                child_a, child_b = child_ab[0], child_ab[1]
+            size = _pop(heap, size, key)
+            popped += 1
+            start = m
+            for ci in range(first_a, first_a + count_a):
+                for cj in range(first_b, first_b + count_b):
+                    low = _bounds(a, ci, b, cj, r, s, best, margin)
+                    if low - margin > best:
+                        pruned += 1
+                        continue
+                    _gather_a(prepared_a, ci, m, ga, gfa)
+                    if count_b == 1 and m > start:  # the same B node: moved once
+                        _copy_column(gb, start, m)
+                        _copy_column(gfb, start, m)
+                    else:
+                        _gather_b(b, cj, r, s, m, gb, gfb)
+                    child_low[m], child_a[m], child_b[m] = low, ci, cj
+                    m += 1
+            pairs += count
+        if popped == 0:
             break
-        size = _pop(heap, size, key)
-        i, j = entry_a[e], entry_b[e]
-        unfolded += 1
-        split = _split_a(a[i, COUNT], a[i, GAP], b[j, COUNT], b[j, GAP])
-        first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
-        count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
-        if count > child_index.shape[0]:
-            ga, gfa = np.empty((9, count), dtype), np.empty((14, count), dtype)
-            gb, gfb = np.empty((9, count), dtype), np.empty((14, count), dtype)
-            dist, child_low = np.empty(count, dtype), np.empty(count)
-            child_index = np.empty(count, np.int64)
-        m = 0  # children past bounds 1 and 2, gathered for bound 3
-        for c in range(first, first + count):
-            ci, cj = (c, j) if split else (i, c)
-            low = _bounds(a, ci, b, cj, r, s, best, margin)
-            if low - margin > best:
-                pruned += 1
-                continue
-            _gather_a(prepared_a, ci, m, ga, gfa)
-            if split and m > 0:  # the same B node: moved once
-                _copy_column(gb, 0, m)
-                _copy_column(gfb, 0, m)
-            else:
-                _gather_b(b, cj, r, s, m, gb, gfb)
-            child_low[m], child_index[m] = low, c
-            m += 1
-        pairs += count
+        unfolded += popped
         if m == 0:
             continue
+        # bound 3 on every gathered pair at once; candidates; the rest sorted, pushed
         exact_paired(ga, gfa, gb, gfb, m, one, dist)
         kept = 0
         for k in range(m):
-            c = child_index[k]
-            ci, cj = (c, j) if split else (i, c)
+            ci, cj = child_a[k], child_b[k]
             low = max(child_low[k], np.float64(dist[k]) - a[ci, GAP] - b[cj, GAP])
             if low - margin > best:
                 continue
@@ -333,20 +387,22 @@ def distance_kernel(
                 continue
             t = kept  # insertion, the largest bound first (ties pop the last pushed first)
             while t > 0 and child_low[t - 1] < low:
-                child_low[t], child_index[t] = child_low[t - 1], child_index[t - 1]
+                child_low[t], child_a[t], child_b[t] = (
+                    child_low[t - 1],
+                    child_a[t - 1],
+                    child_b[t - 1],
+                )
                 t -= 1
-            child_low[t], child_index[t] = low, c
+            child_low[t], child_a[t], child_b[t] = low, ci, cj
             kept += 1
         if entries + kept > key.shape[0]:
-            grow = 2 * (entries + kept)
-            key, heap = _grown(key, grow), _grown(heap, grow)
-            entry_a, entry_b = _grown(entry_a, grow), _grown(entry_b, grow)
+            key, ints = _grown(key, 2 * (entries + kept)), _grown_rows(ints, 2 * (entries + kept))
+            entry_a, entry_b, heap = ints[0], ints[1], ints[2]
         for t in range(kept):
             if child_low[t] - margin > best:  # the best distance may have dropped since
                 continue
-            c = child_index[t]
             key[entries] = max(child_low[t], 0.0)
-            entry_a[entries], entry_b[entries] = (c, j) if split else (i, c)
+            entry_a[entries], entry_b[entries] = child_a[t], child_b[t]
             size = _push(heap, size, key, entries)
             entries += 1
         largest = max(largest, size)
