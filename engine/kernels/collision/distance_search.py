@@ -28,8 +28,10 @@ its children, and when the pair's bound is positive (best first: nothing to gain
 going deep) the other node too if it is a surrogate with a sphere at least ``BOTH`` times
 as large. Up to ``POPS`` pairs with a positive bound are popped and unfolded together
 (one with a bound ≤ 0 alone: depth first), so that their child pairs get bound 3 in one
-vectorised call. Each child pair is bounded by 1, 2 and 3 in turn and dropped at the
-first bound that exceeds the best distance by more than the margin. A surviving leaf
+vectorised call. When both nodes unfold, each child is first tested against the other
+node's sphere (bound 1), and only the children that pass are paired. Each child pair is
+bounded by 1, 2 and 3 in turn and dropped at the first bound that exceeds the best
+distance by more than the margin. A surviving leaf
 pair gets its exact distance and closest points
 (:func:`~engine.kernels.geometry.triangle_batch.exact_point`): a candidate; the others are
 pushed, the largest bound first. The search also ends at a candidate of distance 0 (the
@@ -182,6 +184,12 @@ def _axis(a, i, b, j, r, s):
 
 
 @njit(**INLINE)
+def _sphere(a, i, b, j, r, s):
+    """Sphere bound of the pair (i, j)."""
+    return _axis(a, i, b, j, r, s)[3] - a[i, RADIUS] - b[j, RADIUS]
+
+
+@njit(**INLINE)
 def _bounds(a, i, b, j, r, s, best, margin):
     """Sphere bound of the pair (i, j), then (unless that one drops the pair, ``bound −
     margin > best``) the larger of it and the projection bound."""
@@ -297,8 +305,7 @@ def distance_kernel(
         pick, low = first, np.inf
         for c in range(first, first + count):
             ci, cj = (c, j) if split else (i, c)
-            _, _, _, length = _axis(a, ci, b, cj, r, s)
-            bound = length - a[ci, RADIUS] - b[cj, RADIUS]
+            bound = _sphere(a, ci, b, cj, r, s)
             if bound < low:
                 pick, low = c, bound
         if split:
@@ -323,8 +330,9 @@ def distance_kernel(
     child_low = np.empty(room)  # the gathered child pairs: bound, A's node, B's node
     child_ab = np.empty((2, room), np.int64)
     child_a, child_b = child_ab[0], child_ab[1]
+    keep = np.empty((2, 8 if search else 1), np.int64)  # children kept by the parent test
     if search:
-        key[0] = max(_axis(a, 0, b, 0, r, s)[3] - a[0, RADIUS] - b[0, RADIUS], 0.0)
+        key[0] = max(_sphere(a, ZERO, b, ZERO, r, s), 0.0)
         entry_a[0], entry_b[0] = 0, 0
         entries = 1
         size = _push(heap, size, key, ZERO)
@@ -351,8 +359,25 @@ def distance_kernel(
             size = _pop(heap, size, key)
             popped += 1
             start = m
+            if max(count_a, count_b) > keep.shape[1]:
+                keep = np.empty((2, max(count_a, count_b)), np.int64)
+            kept_a = kept_b = 0  # both unfold: each child against the other node's sphere
             for ci in range(first_a, first_a + count_a):
-                for cj in range(first_b, first_b + count_b):
+                if count_b > 1 and _sphere(a, ci, b, j, r, s) - margin > best:
+                    pruned += count_b
+                    continue
+                keep[0, kept_a] = ci
+                kept_a += 1
+            for cj in range(first_b, first_b + count_b):
+                if count_a > 1 and _sphere(a, i, b, cj, r, s) - margin > best:
+                    pruned += kept_a
+                    continue
+                keep[1, kept_b] = cj
+                kept_b += 1
+            for ta in range(kept_a):
+                ci = keep[0, ta]
+                for tb in range(kept_b):
+                    cj = keep[1, tb]
                     low = _bounds(a, ci, b, cj, r, s, best, margin)
                     if low - margin > best:
                         pruned += 1
