@@ -76,7 +76,7 @@ OUT_DISTANCE, OUT_POINT_A, OUT_POINT_B = 0, 1, 4  # the distance, then two (3,) 
 N_OUT_F = 7
 HEAP_START = 256  # initial capacity of the heap (doubled when full)
 CHILDREN_START = 64  # initial capacity of the gathered child pairs (grown when needed)
-BOTH = 0.7  # unfold both nodes of a pair when their spheres are this close in size
+BOTH = 0.5  # unfold both nodes of a pair when their spheres are this close in size
 POPS = 8  # pairs unfolded together (their children's exact bounds in one vectorised call)
 
 
