@@ -9,63 +9,46 @@ to a triangle is convex, so every point of every covered triangle lies within
 ``g = ε − leaf ε`` of the surrogate (``g = 0`` for a leaf, an original triangle). For
 nodes a, b with surrogates S_a, S_b, every descendant leaf pair (t_a, t_b) then has
 
-    d(t_a, t_b) ≥ d(S_a, S_b) − g_a − g_b,
+    d(t_a, t_b) ≥ d(S_a, S_b) − g_a − g_b ≥ (gap of S_a, S_b projected on any axis) − g_a − g_b,
 
-a lower bound; the exact distance of any leaf pair is an upper bound on the minimum.
+and ``d(t_a, t_b) ≥ |c_a − c_b| − r_a − r_b`` for the bounding spheres (c, r) of the
+covered triangles (:attr:`~engine.trees.views.TreeViews.distance_bounds`); the exact
+distance of any leaf pair is an upper bound on the minimum.
 
-**Search** (level-synchronous; each round is one batched call of the exact kernel,
-:func:`~engine.kernels.geometry.triangle_batch.paired_kernel` in ``EXACT`` mode as
-:func:`~engine.geometry.distance.triangle_distances` runs it, for the front, and one for
-probes):
-
-1. the front starts at the pair of roots;
-2. every front pair gets its exact distance in ``precision``; a leaf pair's is a
-   candidate for the minimum;
-3. the :data:`PROBES` surrogate pairs with the smallest lower bounds are probed: the
-   exact distance of their *representative* leaves (per node, the covered face whose
-   centroid is nearest the node triangle's centroid) is a candidate too, which gives
-   a tight upper bound long before the front reaches the leaves;
-4. a surrogate pair survives if its lower bound, less a rounding margin (256 ulp of
-   the pair's scale, :func:`~engine.kernels.collision.batch.query_margin`), is at most the
-   best candidate; each survivor unfolds the node with the larger g (a leaf never), and a
-   child pair enters the next front only if the bounding spheres of its covered
-   triangles (:attr:`~engine.trees.views.TreeViews.distance_bounds`: the tree's
-   :attr:`~engine.trees.views.TreeViews.spheres` less the halo) pass the same test;
-5. the search stops when the front is empty, or at once when a candidate has
-   distance 0 (the meshes touch or intersect).
-
-This is not the contact traversal's unfold rule (every surrogate of a pair unfolds,
-:mod:`engine.collision.query`), on purpose: the contact search must reach every leaf
-pair in contact anyway, while a branch and bound wants each evaluated pair to tighten its
-lower bound most, and the larger of the two g is the larger slack in that bound.
-Unfolding one node per pair (rather than both when their g are close) and 64 probes
-gave the fewest evaluated pairs over icospheres of 1,280 and 5,120 faces at four gaps
-and interlocked tori (sweep of 16 / 64 / 256 probes, one or both nodes).
+**Search** (one call of :func:`~engine.kernels.collision.distance_search.distance_kernel`,
+whose module documents it): a greedy descent gives a first upper bound; then a best-first
+search pops node pairs from a heap keyed on their lower bound, unfolds the node with the
+larger bounding sphere (both nodes when their spheres are of a size and the pair is
+apart), bounds each child pair with its spheres, the projection of the two node
+triangles on the axis through the sphere centres, and the exact distance of the two node
+triangles less their g (vectorised over the children of up to 8 pairs), and evaluates
+the surviving leaf pairs with the exact kernel
+(:func:`~engine.kernels.geometry.triangle_batch.exact_point`, in ``precision``, on B's
+triangles moved as the contact search moves them). It stops when the smallest bound in
+the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
+intersect). The host validates, looks up the trees' packed node rows (built once per
+tree), calls the kernel once and wraps its output.
 
 A pair containing the minimum is pruned only if its bound exceeds a candidate by more
-than the rounding margin, so the result is the minimum over all face pairs up to
-rounding of the exact kernel (the tests compare it with every face pair).
+than the rounding margin (256 ulp of the pair's scale,
+:func:`~engine.kernels.collision.batch.query_margin`), so the result is the minimum of
+the exact kernel over every face pair (the tests compare it with every face pair).
 """
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
-from engine.arguments import check_precision, kernel_constants
+from engine.arguments import check_precision
 from engine.collision.query import ULP, check_posed_pair
-from engine.geometry.distance import DEFAULT_ITERATIONS, DEFAULT_RTOL
 from engine.geometry.pose import Pose
-from engine.kernels.collision.batch import query_margin, relative_pose
-from engine.kernels.collision.rigid import move_kernel
-from engine.kernels.geometry import triangle_batch as tb
+from engine.kernels.collision import distance_search as ds
 from engine.trees.tree import SurrogateTree
 
 __all__ = ["MeshDistance", "mesh_distance"]
-
-PROBES = 64
-"""Surrogate pairs per round whose representative leaves are evaluated (upper bounds)."""
 
 
 @dataclass(frozen=True)
@@ -76,11 +59,13 @@ class MeshDistance:
         (0 when they intersect or touch), computed in the query precision
     faces : (2,) int64 — (face of A, face of B) attaining it
     point_a, point_b : (3,) float64 — closest points on those faces, world frame
-    node_pairs : int — node pairs whose surrogate (or leaf) distance was evaluated
-    probes : int — representative leaf pairs evaluated for upper bounds
-    rounds : int — fronts evaluated
-    largest_front : int — node pairs in the largest front
-    sphere_pruned : int — node pairs pruned by their bounding spheres before evaluation
+    node_pairs : int — node pairs bounded (the roots', and every child pair of an
+        unfolded pair)
+    probes : int — leaf pairs whose exact distance and closest points were evaluated
+    rounds : int — node pairs unfolded
+    largest_front : int — largest number of node pairs waiting in the search's heap
+    sphere_pruned : int — child pairs dropped by their sphere or projection bound, before
+        any triangle distance
     """
 
     distance: float
@@ -116,160 +101,67 @@ def mesh_distance(
     """
     check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     dtype = check_precision(precision)
-    _, rotation, shift = relative_pose(
-        pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
+    rows_a, rows_b = _node_rows(tree_a), _node_rows(tree_b)
+    prepared_a = rows_a if dtype is np.float64 else _prepared(tree_a, rows_a, precision)
+    out_i, out_f = np.empty(ds.N_OUT_I, np.int64), np.empty(ds.N_OUT_F)
+    ds.distance_kernel(
+        prepared_a, rows_a, rows_b,
+        pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation,
+        ULP[dtype], dtype(1.0), out_i, out_f,
+    )  # fmt: skip
+    pairs, probes, rounds, largest, pruned = out_i[ds.OUT_PAIRS :].tolist()
+    result = object.__new__(MeshDistance)  # without the frozen dataclass's __init__: one
+    result.__dict__.update(  # object.__setattr__ a field, 1-3 µs of a query that may take 8
+        distance=float(out_f[ds.OUT_DISTANCE]),
+        faces=out_i[: ds.OUT_FACE_B + 1],
+        point_a=out_f[ds.OUT_POINT_A : ds.OUT_POINT_A + 3],
+        point_b=out_f[ds.OUT_POINT_B : ds.OUT_POINT_B + 3],
+        node_pairs=pairs,
+        probes=probes,
+        rounds=rounds,
+        largest_front=largest,
+        sphere_pruned=pruned,
     )
-    margin = query_margin(
-        tree_a.views.geometry.extent, tree_b.views.geometry.extent, shift, ULP[dtype]
-    )
-    set_a, master_b = tree_a.views.geometry.node_set(precision, False), tree_b.views.geometry.master
-    body_a = _Body(set_a.coords_rm, set_a.frames_rm, None, *tree_a.views.distance_bounds)
-    static_b = tree_b.views.distance_bounds
-    body_b = _Body(
-        np.empty(master_b.coords_rm.shape, dtype),  # rows filled as they are reached
-        np.empty(master_b.frames_rm.shape, dtype),
-        (master_b.coords_rm, master_b.frames_rm, rotation, shift),
-        *static_b[:-2],
-        static_b[-2] @ rotation.T + shift,
-        static_b[-1],
-    )
-    search = _Search(body_a, body_b, dtype, margin)
-    search.run()
-    if search.best_pair is None:  # unreachable: the roots' representatives are evaluated
-        raise AssertionError("mesh_distance evaluated no leaf pair")
-    node_a, node_b = search.best_pair
-    point_a, point_b = (pose_a.apply(p.astype(np.float64)) for p in search.best_points)
-    return MeshDistance(
-        distance=float(search.best),
-        faces=np.array([tree_a.face[node_a], tree_b.face[node_b]], dtype=np.int64),
-        point_a=point_a,
-        point_b=point_b,
-        node_pairs=search.node_pairs,
-        probes=search.probes,
-        rounds=search.rounds,
-        largest_front=search.largest_front,
-        sphere_pruned=search.sphere_pruned,
-    )
+    return result
 
 
-@dataclass(frozen=True)
-class _Body:
-    """One body's nodes as the search reads them (N nodes; B's in A's frame).
-
-    coords, frames : (N, 9), (N, 14) — row-major kernel layout
-        (:class:`~engine.geometry.distance.TriangleSet`), in the query dtype
-    move : None, or for B ``(coords, frames, rotation, shift)``: the float64 body-frame
-        rows that :func:`~engine.kernels.collision.rigid.move_kernel` moves into ``coords``,
-        ``frames`` when a node is reached (the contact search's mover)
-    gap : (N,) float64 — g = ε − leaf ε of a surrogate, 0 for a leaf
-    leaf : (N,) bool
-    first_child, child_count : (N,) int64
-    representative : (N,) int64 — node index of the node's representative leaf
-    centre : (N, 3) float64 — centre of the node's bounding sphere
-    radius : (N,) float64 — its radius (covered triangles, without the halo)
-    """
-
-    coords: np.ndarray
-    frames: np.ndarray
-    move: tuple | None
-    gap: np.ndarray
-    leaf: np.ndarray
-    first_child: np.ndarray
-    child_count: np.ndarray
-    representative: np.ndarray
-    centre: np.ndarray
-    radius: np.ndarray
+_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-class _Search:
-    """State of one branch-and-bound query (see the module docstring)."""
-
-    def __init__(self, a: _Body, b: _Body, dtype, margin: float) -> None:
-        self.a, self.b = a, b
-        self.dtype, self.margin = dtype, float(margin)
-        # the exact mode of the paired kernel, with the argument types triangle_distances
-        # passes (one compiled specialisation); iterations and rtol are unused
-        self.params = (tb.EXACT, np.int64(DEFAULT_ITERATIONS), dtype(DEFAULT_RTOL))
-        self.params += kernel_constants(dtype)
-        self.best, self.best_pair, self.best_points = np.inf, None, None
-        self.node_pairs = self.probes = self.rounds = self.largest_front = self.sphere_pruned = 0
-
-    def exact(self, na: np.ndarray, nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Exact distances ``(n,)`` and closest points ``(3, n)`` of node pairs (na, nb)."""
-        n = len(na)
-        for body, index in ((self.a, na), (self.b, nb)):
-            if body.move is not None:
-                move_kernel(*body.move[:2], index, *body.move[2:], body.coords, body.frames)
-        ca, fa = (np.ascontiguousarray(x[na].T) for x in (self.a.coords, self.a.frames))
-        cb, fb = (np.ascontiguousarray(x[nb].T) for x in (self.b.coords, self.b.frames))
-        distance, lower = np.empty(n, self.dtype), np.empty(n, self.dtype)
-        point_a, point_b = np.empty((3, n), self.dtype), np.empty((3, n), self.dtype)
-        status, stats = np.empty(n, np.int8), np.zeros(tb.N_STATS, np.int64)
-        eps = np.zeros(n, self.dtype)
-        tb.paired_kernel(
-            ca, fa, cb, fb, eps, 0, n, self.params,
-            distance, lower, point_a, point_b, status, stats,
-        )  # fmt: skip
-        return distance, point_a, point_b
-
-    def offer(self, na, nb, distance, point_a, point_b) -> None:
-        """Leaf pairs (na, nb) with their exact distances: keep the smallest."""
-        if not len(distance):
-            return
-        k = int(np.argmin(distance))
-        if distance[k] < self.best:
-            self.best = float(distance[k])
-            self.best_pair = (int(na[k]), int(nb[k]))
-            self.best_points = (point_a[:, k].copy(), point_b[:, k].copy())
-
-    def run(self) -> None:
-        """Rounds until the front is empty or the distance is 0."""
-        a, b = self.a, self.b
-        na, nb = np.zeros(1, np.int64), np.zeros(1, np.int64)
-        while len(na):
-            self.rounds += 1
-            self.node_pairs += len(na)
-            self.largest_front = max(self.largest_front, len(na))
-            distance, point_a, point_b = self.exact(na, nb)
-            finest = a.leaf[na] & b.leaf[nb]
-            if finest.any():
-                found = distance[finest], point_a[:, finest], point_b[:, finest]
-                self.offer(na[finest], nb[finest], *found)
-            inner = np.flatnonzero(~finest)
-            if self.best <= 0.0 or not len(inner):
-                return
-            na, nb = na[inner], nb[inner]
-            lower = distance[inner].astype(np.float64) - a.gap[na] - b.gap[nb]
-            probe = np.argpartition(lower, PROBES)[:PROBES] if len(lower) > PROBES else slice(None)
-            qa, qb = a.representative[na[probe]], b.representative[nb[probe]]
-            self.probes += len(qa)
-            self.offer(qa, qb, *self.exact(qa, qb))
-            if self.best <= 0.0:
-                return
-            keep = lower - self.margin <= self.best
-            na, nb = _unfold(na[keep], nb[keep], a, b)
-            apart = a.centre[na] - b.centre[nb]
-            reach = np.sqrt(np.einsum("ij,ij->i", apart, apart)) - a.radius[na] - b.radius[nb]
-            keep = reach - self.margin <= self.best
-            self.sphere_pruned += len(keep) - int(np.count_nonzero(keep))
-            na, nb = na[keep], nb[keep]
+def _node_rows(tree: SurrogateTree) -> np.ndarray:
+    """``(N, N_COLUMNS)`` float64 node rows of ``tree`` as
+    :func:`~engine.kernels.collision.distance_search.distance_kernel` reads them (see
+    :mod:`~engine.kernels.collision.distance_search`), built on first use, kept with it."""
+    rows = _ROWS.get(tree)
+    if rows is None:
+        views = tree.views
+        master, bounds = views.geometry.master, views.distance_bounds
+        rows = np.empty((len(tree), ds.N_COLUMNS))
+        rows[:, ds.COORDS : ds.COORDS + 9] = master.coords_rm
+        rows[:, ds.FRAMES : ds.FRAMES + 14] = master.frames_rm
+        rows[:, ds.CENTRE : ds.CENTRE + 3] = bounds.centre
+        rows[:, ds.RADIUS] = bounds.radius
+        rows[:, ds.GAP] = bounds.gap
+        rows[:, ds.FIRST] = bounds.first_child
+        rows[:, ds.COUNT] = np.where(bounds.leaf, 0, bounds.child_count)
+        rows[:, ds.FACE] = tree.face
+        rows[:, ds.EXTENT] = views.geometry.extent
+        rows.flags.writeable = False
+        rows = _ROWS[tree] = rows
+    return rows
 
 
-def _unfold(na: np.ndarray, nb: np.ndarray, a: _Body, b: _Body) -> tuple[np.ndarray, np.ndarray]:
-    """Child pairs ``(na, nb)``, both ``(m,)`` int64, of the node pairs ``na, nb (k,)`` int64,
-    none of them two leaves: the node with the larger g is unfolded (a leaf, g = 0, only
-    if the other is one too: never), the other stays.
+_PREPARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
-    The branch and bound's own rule, not the traversal's
-    (:func:`~engine.collision.query.unfold_pairs`, both surrogates unfold): splitting only
-    the node with the larger gap tightens the lower bound d(S_a, S_b) − g_a − g_b where it
-    is loosest, and evaluated the fewest pairs in the sweep of the module docstring."""
-    split_a = ~a.leaf[na] & (b.leaf[nb] | (a.gap[na] >= b.gap[nb]))
-    count = np.where(split_a, a.child_count[na], b.child_count[nb])
-    owner = np.repeat(np.arange(len(na)), count)
-    child = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)
-    na, nb, split_a = na[owner], nb[owner], split_a[owner]
-    return (
-        np.where(split_a, a.first_child[na] + child, na),
-        np.where(split_a, nb, b.first_child[nb] + child),
-    )
+
+def _prepared(tree: SurrogateTree, rows: np.ndarray, precision: str) -> np.ndarray:
+    """``(N, 23)`` A's prepared triangles and frames in ``precision`` (float32), row-major:
+    the float64 rows rounded, as :meth:`~engine.trees.views.TreeGeometry.node_set` rounds
+    them; built on first use, kept with the tree."""
+    found = _PREPARED.get(tree)
+    if found is None:
+        nodes = tree.views.geometry.node_set(precision, False)
+        found = np.ascontiguousarray(np.hstack([nodes.coords_rm, nodes.frames_rm]))
+        found.flags.writeable = False
+        _PREPARED[tree] = found
+    return found
