@@ -56,14 +56,14 @@ from engine.geometry.distance import (
     triangle_contacts,
 )
 from engine.geometry.pose import Pose
-from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.batch import MARGIN_ULPS, SQRT3, query_margin, relative_pose
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry import triangle_batch as tb
 from engine.trees.tree import SurrogateTree
 
-__all__ = ["ContactSet", "ContactStats", "find_contacts"]
+__all__ = ["FAR_APART", "ContactSet", "ContactStats", "far_apart", "find_contacts"]
 
 
 @dataclass(frozen=True)
@@ -148,10 +148,21 @@ def find_contacts(
     check_kernel(kernel), check_precision(precision)  # validate before any work
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)):
+    if type(iterations) is not int and (
+        isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer))
+    ):
         raise InvalidArgumentError(f"iterations must be an integer, got {iterations!r}")
     if iterations < 1:
         raise InvalidArgumentError(f"iterations must be at least 1, got {iterations}")
+    if hierarchy and traversal == "pairs" and far_apart(tree_a, pose_a, tree_b, pose_b):
+        return FAR_APART
+    return _search(
+        tree_a, pose_a, tree_b, pose_b, kernel, hierarchy, precision, traversal, iterations
+    )
+
+
+def _search(tree_a, pose_a, tree_b, pose_b, kernel, hierarchy, precision, traversal, iterations):
+    """:func:`find_contacts` on valid arguments, without the :func:`far_apart` early-out."""
     rot_a, rotation, shift = relative_pose(
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
     )
@@ -176,6 +187,46 @@ def find_contacts(
         result = (result[0][:m], result[1][:k], result[2][:k], result[3][:k])
     stats = ContactStats(*counters[:4], len(result[0]), len(result[1]), *counters[4:])
     return ContactSet(*result, stats)
+
+
+def _empty(shape: tuple, dtype=np.float64) -> np.ndarray:
+    """A read-only empty array."""
+    out = np.empty(shape, dtype)
+    out.flags.writeable = False
+    return out
+
+
+FAR_APART = ContactSet(
+    _empty((0, 2), np.int64),
+    _empty((0, 3)),
+    _empty((0, 3)),
+    _empty(0),
+    ContactStats(sphere_pruned=1),
+)
+"""The result of every query that :func:`far_apart` settles: no contact, the root pair
+pruned by its bounding spheres (the multiresolution search's own counters for that case).
+One shared object, its arrays read-only."""
+
+_FAR_SLACK = 2.0 * MARGIN_ULPS * ULP[np.float32] * 2.0  # twice the float32 query margin
+
+
+def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b: Pose) -> bool:
+    """True when the two bodies' root bounding spheres are apart by more than twice the
+    largest query margin, whatever the rotations: ``|p_b − p_a| > R_a + R_b + slack``, ``R``
+    each tree's :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of a
+    body lies farther than ``R`` from its position) and ``slack`` twice the float32
+    :func:`~engine.kernels.collision.batch.query_margin` at this distance. The
+    multiresolution search then prunes the root pair too (its sphere test has a smaller
+    margin, and the two distances differ by rounding only, far below the slack), so
+    :func:`find_contacts` returns :data:`FAR_APART` without any kernel call. Host floats
+    only (a few hundred nanoseconds)."""
+    ax, ay, az = pose_a.position.tolist()
+    bx, by, bz = pose_b.position.tolist()
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    distance = (dx * dx + dy * dy + dz * dz) ** 0.5
+    va, vb = tree_a.views, tree_b.views
+    scale = SQRT3 * (va.geometry.extent + vb.geometry.extent) + distance
+    return distance > va.root_reach + vb.root_reach + _FAR_SLACK * scale
 
 
 def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:

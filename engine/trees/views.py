@@ -201,6 +201,14 @@ class TreeViews:
         return out
 
     @cached_property
+    def root_reach(self) -> float:
+        """``|c| + r`` (float) of the root's bounding sphere (:attr:`spheres`, centre ``c``,
+        radius ``r``, body frame): every covered ε-region lies within this distance of the
+        body-frame origin, whatever the pose's rotation."""
+        centre, radius = self.spheres[0, :3], self.spheres[0, 3]
+        return float(np.sqrt(centre @ centre) + radius)
+
+    @cached_property
     def distance_bounds(self) -> DistanceBounds:
         """The node data of the distance branch and bound (:class:`DistanceBounds`)."""
         tree, ball = self._tree, self.spheres
