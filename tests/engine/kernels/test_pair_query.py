@@ -32,8 +32,8 @@ def _poses(seed: int, count: int):
     rng = np.random.default_rng(seed)
     for _ in range(count):
         q, direction = rng.normal(size=4), rng.normal(size=3)
-        pa = Pose(rng.normal(size=3), rng.normal(size=4) / 2 + [1, 0, 0, 0])
-        pa = Pose(pa.position, pa.orientation / np.linalg.norm(pa.orientation))
+        qa = rng.normal(size=4)
+        pa = Pose(rng.normal(size=3), qa / np.linalg.norm(qa))
         reach = rng.uniform(0.6, 2.6)
         pb = Pose(
             pa.position + reach * direction / np.linalg.norm(direction), q / np.linalg.norm(q)
