@@ -371,11 +371,9 @@ def _resolve(m, params, work, n, out, stats):
 
     ``params = (mode, iterations, rtol, one, band_factor)``. ``EXACT``: the exact
     kernel on all. Otherwise the iterative kernel; in ``HYBRID`` mode it only decides
-    (certified "no contact" is final), every certified contact gets the exact kernel's
-    distance and closest points, and the not-converged pairs (``stats[STAT_FALLBACKS]``)
-    are decided as ``EXACT`` decides, by the vectorised exact distance
-    (:func:`exact_paired`, on them moved together), then get the exact closest points if
-    in contact: the contacts are the exact kernel's, bit for bit. (The iterate's
+    (certified "no contact" is final), and every pair in contact or not converged gets the
+    exact kernel's distance and closest points (``stats[STAT_FALLBACKS]`` counts the
+    not-converged ones): the contacts are the exact kernel's, bit for bit. (The iterate's
     points are *a* pair at a distance within the tolerance, not the closest pair: for
     parallel faces or edges they can lie a triangle apart, and near touching the direction
     q − p is the iteration's noise.) ``ITERATIVE`` records the iterate's bound and points.
@@ -394,17 +392,17 @@ def _resolve(m, params, work, n, out, stats):
         return n
     iterate_paired(ga, gfa, gb, gfb, m, iterations, one, band_factor, scratch)
     stats[STAT_ITERATIVE] += m
-    c = ZERO  # HYBRID: not-converged pairs, moved to the first c columns
     for k in range(m):
         eps = geps[k]
         upper, low, band = scratch[6, k], scratch[7, k], scratch[8, k]
         st = classify(upper, low, eps, rtol * eps + band, band)
         if st == NOT_CONVERGED and mode == HYBRID:
-            # decided below with the vectorised exact distance, as EXACT mode decides;
-            # columns before k are done with, so column k moves down to column c
             stats[STAT_FALLBACKS] += 1
-            _move_column(ga, gfa, gb, gfb, gi, gj, geps, k, c)
-            c += 1
+            d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
+            if d <= eps:
+                n = _record(
+                    n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
+                )
         elif mode == HYBRID and st == CONTACT:
             # certified contact: the exact kernel's geometry (the exact distance is <= the
             # certified upper bound <= ε, so the pair stays a contact)
@@ -415,27 +413,7 @@ def _resolve(m, params, work, n, out, stats):
             p = (scratch[0, k] + o[0], scratch[1, k] + o[1], scratch[2, k] + o[2])
             q = (scratch[3, k] + o[0], scratch[4, k] + o[1], scratch[5, k] + o[2])
             n = _record(n, gi[k], gj[k], upper, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s)
-    if c > 0:  # exact distances of the not-converged, closest points of their contacts
-        exact_paired(ga, gfa, gb, gfb, c, one, dist)
-        for k in range(c):
-            if dist[k] <= geps[k]:
-                d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
-                n = _record(
-                    n, gi[k], gj[k], d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
-                )
     return n
-
-
-@njit(**INLINE)
-def _move_column(ga, gfa, gb, gfb, gi, gj, geps, k, c):
-    """Copy gathered pair ``k`` (coordinates, frames, indices, ε) to column ``c``."""
-    for r in range(9):
-        ga[r, c] = ga[r, k]
-        gb[r, c] = gb[r, k]
-    for r in range(14):
-        gfa[r, c] = gfa[r, k]
-        gfb[r, c] = gfb[r, k]
-    gi[c], gj[c], geps[c] = gi[k], gj[k], geps[k]
 
 
 @njit(**JIT)
