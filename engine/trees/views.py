@@ -239,6 +239,13 @@ class TreeViews:
         )
 
     @cached_property
+    def root_sphere(self) -> tuple[tuple[float, float, float], float]:
+        """The root's bounding sphere (:attr:`spheres` row 0) as Python floats:
+        ``((x, y, z), radius)``, body frame."""
+        x, y, z, radius = self.spheres[0].tolist()
+        return (x, y, z), radius
+
+    @cached_property
     def root_reach(self) -> float:
         """``|c| + r`` (float) of the root's bounding sphere (:attr:`spheres`, centre ``c``,
         radius ``r``, body frame): every covered ε-region lies within this distance of the

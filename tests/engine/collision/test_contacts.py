@@ -339,3 +339,51 @@ def test_far_early_out_threshold_and_result():
     # the flat and active-set searches keep their own counters (no early-out)
     flat = find_contacts(ta, above[0], tb, above[1], hierarchy=False)
     assert flat.stats.comparisons > 0 and flat.stats.sphere_pruned == 0
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    pair=st.sampled_from([("a", "b"), ("b", "a"), ("a", "sphere")]),
+    excess=st.floats(-3.0, 3.0),
+    qa=st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1),
+    qb=st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1),
+    direction=st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda d: np.linalg.norm(d) > 0.1),
+    precision=st.sampled_from(["float64", "float32"]),
+)
+def test_far_early_out_with_turned_off_centre_bodies(pair, excess, qa, qb, direction, precision):
+    """Off-centre bodies at any rotations, their root spheres' world-frame centres
+    ``r_a + r_b + excess·slack`` apart: the early-out's second (world-frame) test fires
+    only where the kernel prunes the root pair too."""
+    ta, tb = OFF_CENTRE[pair[0]], OFF_CENTRE[pair[1]]
+    pa = Pose([0.2, -0.1, 0.3], np.array(qa) / np.linalg.norm(qa))
+    rotation_b = Pose([0, 0, 0], np.array(qb) / np.linalg.norm(qb))
+    u = np.array(direction) / np.linalg.norm(direction)
+    (ca, ra), (cb, rb) = ta.views.root_sphere, tb.views.root_sphere
+    centre_a = pa.apply(np.array(ca))
+    distance = np.linalg.norm(centre_a + 3 * u - pa.position)  # about the positions' gap
+    centre_b = centre_a + (ra + rb + excess * _slack(ta, tb, distance)) * u
+    pb = Pose(centre_b - rotation_b.rotation @ np.array(cb), rotation_b.orientation)
+    got = find_contacts(ta, pa, tb, pb, precision=precision)
+    ref = contacts._search(ta, pa, tb, pb, "hybrid", True, precision, "pairs", 1)
+    np.testing.assert_array_equal(got.pairs, ref.pairs)
+    assert got.stats == ref.stats
+    if contacts.far_apart(ta, pa, tb, pb):
+        assert ref.stats == contacts.FAR_APART.stats
+
+
+def test_far_early_out_places_off_centre_spheres():
+    """Two off-centre bodies whose positions nearly coincide but whose root spheres are
+    turned apart: the rotation-free bound cannot settle it, the world-frame test does."""
+    ta, tb = OFF_CENTRE["a"], OFF_CENTRE["b"]
+    (ca, ra), (cb, rb) = ta.views.root_sphere, tb.views.root_sphere
+    x = np.array([1.0, 0.0, 0.0])
+    pa = Pose([0.0, 0.0, 0.0], _turning(np.array(ca) / np.linalg.norm(ca), -x))
+    pb = Pose([0.05, 0.0, 0.0], _turning(np.array(cb) / np.linalg.norm(cb), x))
+    gap = np.linalg.norm(pb.apply(np.array(cb)) - pa.apply(np.array(ca))) - ra - rb
+    assert gap > 0.1 and ta.views.root_reach + tb.views.root_reach > 0.05
+    assert contacts.far_apart(ta, pa, tb, pb)
+    got = find_contacts(ta, pa, tb, pb)
+    assert got is contacts.FAR_APART
+    assert contacts._search(ta, pa, tb, pb, "hybrid", True, "float64", "pairs", 1).stats == (
+        got.stats
+    )
