@@ -4,8 +4,11 @@ Every query runs in body A's frame (a pair-local frame): B's tree is moved by th
 relative pose ``pose_a⁻¹ ∘ pose_b``, so coordinates stay small wherever the bodies are.
 
 Multiresolution search (``hierarchy=True``, ``traversal="pairs"``) keeps a **front of
-node pairs**, starting at the two roots, inside one Numba call
-(:func:`~engine.kernels.collision.traversal.query_kernel`), a level per round:
+node pairs**, starting at the two roots, inside one Numba call with flat arguments
+(:func:`~engine.kernels.collision.pair_query.pair_query`: relative pose, margin,
+traversal and merged contacts; the per-tree arguments are cached on ``tree.views``), a
+level per round — unless the two bodies are so far apart that their root spheres cannot
+meet whatever the rotations (:func:`far_apart`, host floats only):
 
 * a node pair whose bounding spheres (:attr:`~engine.trees.views.TreeViews.spheres`) are
   apart is pruned before any triangle comparison;
@@ -36,12 +39,14 @@ its average (normals averaged and renormalised, overlaps averaged).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from engine.arguments import check_kernel, check_precision
+from engine.arguments import PRECISIONS, check_kernel, check_precision
 from engine.collision.query import (
+    TINY,
     ULP,
     check_posed_pair,
     contact_constants,
@@ -56,14 +61,14 @@ from engine.geometry.distance import (
     triangle_contacts,
 )
 from engine.geometry.pose import Pose
-from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.batch import MARGIN_ULPS, SQRT3, query_margin, relative_pose
 from engine.kernels.collision.contact_merge import contact_kernel
+from engine.kernels.collision.pair_query import pair_query
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
-from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry import triangle_batch as tb
 from engine.trees.tree import SurrogateTree
 
-__all__ = ["ContactSet", "ContactStats", "find_contacts"]
+__all__ = ["FAR_APART", "ContactSet", "ContactStats", "far_apart", "find_contacts"]
 
 
 @dataclass(frozen=True)
@@ -76,7 +81,11 @@ class ContactStats:
     unfoldings : node pairs unfolded
     raw_contacts, merged_contacts : contact points before and after merging
     sphere_pruned : node pairs pruned by their bounding spheres, before any triangle
-        comparison (not counted as comparisons)
+        comparison (not counted as comparisons): the root pair if its spheres are apart
+        (then 1, and nothing else is counted; also when :func:`far_apart` settles the
+        query on the host), else every child pair of an unfolded pair that does not
+        enter the next level (each side's children are tested against the other side's
+        node first, then the survivors against each other)
     """
 
     comparisons_per_level: tuple[int, ...] = ()
@@ -148,34 +157,184 @@ def find_contacts(
     check_kernel(kernel), check_precision(precision)  # validate before any work
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)):
+    if type(iterations) is not int and (
+        isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer))
+    ):
         raise InvalidArgumentError(f"iterations must be an integer, got {iterations!r}")
     if iterations < 1:
         raise InvalidArgumentError(f"iterations must be at least 1, got {iterations}")
+    if hierarchy and traversal == "pairs" and far_apart(tree_a, pose_a, tree_b, pose_b):
+        return FAR_APART
+    return _search(
+        tree_a, pose_a, tree_b, pose_b, kernel, hierarchy, precision, traversal, iterations
+    )
+
+
+def _search(tree_a, pose_a, tree_b, pose_b, kernel, hierarchy, precision, traversal, iterations):
+    """:func:`find_contacts` on valid arguments, without the :func:`far_apart` early-out."""
+    if hierarchy and traversal == "pairs":
+        return _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, int(iterations))
     rot_a, rotation, shift = relative_pose(
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
     )
     pose = (rotation, shift)
     contact = _contact_setup(tree_a, tree_b, rot_a, pose_a.position.copy(), kernel)
-    if hierarchy and traversal == "pairs":
-        result, counters = _hierarchical(
-            tree_a, tree_b, pose, contact, kernel, precision, int(iterations)
-        )
-    else:
-        search = _active_sets if hierarchy else _flat
-        found, count, face_a, face_b, counters = search(
-            tree_a, tree_b, pose, kernel, precision, int(iterations)
-        )
-        result = (
-            np.empty((count, 2), np.int64),
-            np.empty((count, 3)),
-            np.empty((count, 3)),
-            np.empty(count),
-        )
-        m, k = contact_kernel(found, count, face_a, face_b, *contact, result)
-        result = (result[0][:m], result[1][:k], result[2][:k], result[3][:k])
+    search = _active_sets if hierarchy else _flat
+    found, count, face_a, face_b, counters = search(
+        tree_a, tree_b, pose, kernel, precision, int(iterations)
+    )
+    result = (
+        np.empty((count, 2), np.int64),
+        np.empty((count, 3)),
+        np.empty((count, 3)),
+        np.empty(count),
+    )
+    m, k = contact_kernel(found, count, face_a, face_b, *contact, result)
+    result = (result[0][:m], result[1][:k], result[2][:k], result[3][:k])
     stats = ContactStats(*counters[:4], len(result[0]), len(result[1]), *counters[4:])
     return ContactSet(*result, stats)
+
+
+@functools.lru_cache(maxsize=64)
+def _parameters(kernel: str, precision: str, iterations: int) -> tuple:
+    """The parameter group of :func:`~engine.kernels.collision.pair_query.pair_query`:
+    ``(ulp, coarse mode, leaf mode, iterations, rtol, one, band, keep_all)``. Cached."""
+    dtype = PRECISIONS[precision]
+    coarse, leaf = query_parameters(kernel, dtype, iterations)
+    out = (ULP[dtype], coarse[0], leaf[0], *coarse[1:], kernel != "iterative")
+    # Python scalars type as the numpy ones (int64, float64) but pass Numba's dispatcher
+    # faster; float32 constants stay numpy scalars (their type is the query's)
+    return tuple(x.item() if isinstance(x, (np.int64, np.float64)) else x for x in out)
+
+
+_LEVELS = 64  # levels whose pair counts a query records
+_capacity: dict[tuple[int, int], int] = {}  # room for leaf pairs, per tree pair (a hint)
+
+
+def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -> ContactSet:
+    """The pair-front search in one
+    :func:`~engine.kernels.collision.pair_query.pair_query` call (flat arguments; the
+    per-tree ones cached on ``tree.views``). The contacts are written into fresh buffers
+    with room for as many leaf pairs as this tree pair last needed (run again, with room,
+    when more are found)."""
+    side_a = tree_a.views.query_side_a(precision)
+    side_b = tree_b.views.query_side_b
+    parameters = _parameters(kernel, precision, iterations)
+    tiny = TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
+    merge = min(side_a[-1], side_b[-2])
+    key = (id(tree_a), id(tree_b))
+    capacity = _capacity.get(key, 64)
+    while True:
+        counters = np.zeros(tb.N_STATS + _LEVELS, np.int64)
+        pairs, points = np.empty((capacity, 2), np.int64), np.empty((capacity, 3))
+        normals, overlaps = np.empty((capacity, 3)), np.empty(capacity)
+        found, m, k, depth, unfoldings = pair_query(
+            *side_a,
+            *side_b,
+            pose_a.position,
+            pose_a.orientation,
+            pose_b.position,
+            pose_b.orientation,
+            *parameters,
+            tiny,
+            merge,
+            counters,
+            pairs,
+            points,
+            normals,
+            overlaps,
+        )
+        if m >= 0:
+            break
+        capacity = 2 * found
+        if len(_capacity) > 4096:
+            _capacity.clear()
+        _capacity[key] = capacity
+    counts = counters.tolist()
+    stats = _made(
+        ContactStats,
+        comparisons_per_level=tuple(counts[tb.N_STATS : tb.N_STATS + min(depth, _LEVELS)]),
+        iterative=counts[tb.STAT_ITERATIVE],
+        fallbacks=counts[tb.STAT_FALLBACKS],
+        unfoldings=unfoldings,
+        raw_contacts=m,
+        merged_contacts=k,
+        sphere_pruned=counts[tb.STAT_SPHERES],
+    )
+    return _made(
+        ContactSet,
+        pairs=pairs[:m],
+        points=points[:k],
+        normals=normals[:k],
+        overlaps=overlaps[:k],
+        stats=stats,
+    )
+
+
+def _made(cls, **fields):
+    """An instance of the frozen dataclass ``cls`` with ``fields`` (every field, by name),
+    made without its ``__init__`` (which sets each field through ``object.__setattr__``:
+    a few microseconds, a tenth of a small query)."""
+    out = object.__new__(cls)
+    object.__setattr__(out, "__dict__", fields)
+    return out
+
+
+def _empty(shape: tuple, dtype=np.float64) -> np.ndarray:
+    """A read-only empty array."""
+    out = np.empty(shape, dtype)
+    out.flags.writeable = False
+    return out
+
+
+FAR_APART = ContactSet(
+    _empty((0, 2), np.int64),
+    _empty((0, 3)),
+    _empty((0, 3)),
+    _empty(0),
+    ContactStats(sphere_pruned=1),
+)
+"""The result of every query that :func:`far_apart` settles: no contact, the root pair
+pruned by its bounding spheres (the multiresolution search's own counters for that case).
+One shared object, its arrays read-only."""
+
+_FAR_SLACK = 2.0 * MARGIN_ULPS * ULP[np.float32] * 2.0  # twice the float32 query margin
+
+
+def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b: Pose) -> bool:
+    """True when the two bodies' root bounding spheres are apart by more than twice the
+    largest query margin: first whatever the rotations, ``|p_b − p_a| > R_a + R_b + slack``,
+    ``R`` each tree's :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of
+    a body lies farther than ``R`` from its position) and ``slack`` twice the float32
+    :func:`~engine.kernels.collision.batch.query_margin` at this distance; else, when a
+    root sphere is off its body's origin, with both centres placed in the world frame
+    (``|R_a c_a + p_a − R_b c_b − p_b| > r_a + r_b + slack``). The
+    multiresolution search then prunes the root pair too (its sphere test has a smaller
+    margin, and the two distances differ by rounding only, far below the slack), so
+    :func:`find_contacts` returns :data:`FAR_APART` without any kernel call. Host floats
+    only (about a microsecond)."""
+    ax, ay, az = pose_a.position.tolist()
+    bx, by, bz = pose_b.position.tolist()
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    distance = (dx * dx + dy * dy + dz * dz) ** 0.5
+    va, vb = tree_a.views, tree_b.views
+    slack = _FAR_SLACK * (SQRT3 * (va.geometry.extent + vb.geometry.extent) + distance)
+    if distance > va.root_reach + vb.root_reach + slack:
+        return True
+    (ca, ra), (cb, rb) = va.root_sphere, vb.root_sphere
+    if va.root_reach - ra + vb.root_reach - rb <= slack:
+        return False  # root spheres (nearly) centred at the origins: as tight as the next test
+    # the root spheres' centres in the world frame (a body whose origin lies off its centre)
+    g = [bx - ax, by - ay, bz - az]
+    for row, (ua, ub) in enumerate(
+        zip(pose_a.rotation.tolist(), pose_b.rotation.tolist(), strict=True)
+    ):
+        g[row] += (ub[0] * cb[0] + ub[1] * cb[1] + ub[2] * cb[2]) - (
+            ua[0] * ca[0] + ua[1] * ca[1] + ua[2] * ca[2]
+        )
+    reach = ra + rb + slack
+    gx, gy, gz = g
+    return gx * gx + gy * gy + gz * gz > reach * reach
 
 
 def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:
@@ -244,41 +403,6 @@ def _found(pairs: np.ndarray, res) -> tuple:
         np.ascontiguousarray(res.point_b.T),
         res.status,
     )
-
-
-def _hierarchical(tree_a, tree_b, pose, contact, kernel, precision, iterations):
-    """The pair-front search in one :func:`~engine.kernels.collision.traversal.query_kernel`
-    call (``pose``, ``contact`` as :func:`find_contacts` makes them). Returns ``(result,
-    counters)``: ``result = (pairs (m, 2) int64, points (k, 3), normals (k, 3), overlaps
-    (k,))`` float64, world frame; ``counters = (pairs per level, iterative, fallbacks,
-    unfoldings, sphere pruned)``."""
-    dtype = np.dtype(precision).type
-    sa = tree_a.views.geometry.node_set(precision, False)
-    master = tree_b.views.geometry.master
-    coarse, leaf = query_parameters(kernel, dtype, iterations)
-    body_a = (sa.coords_rm, sa.frames_rm, *tree_a.views.structure, tree_a.views.spheres)
-    body_b = (
-        master.coords_rm,
-        master.frames_rm,
-        *tree_b.views.structure,
-        tree_b.views.spheres,
-    )
-    stats = np.zeros(tb.N_STATS, np.int64)
-    levels = np.zeros(64, np.int64)
-    margin = query_margin(
-        tree_a.views.geometry.extent, tree_b.views.geometry.extent, pose[1], ULP[dtype]
-    )
-    depth, unfoldings, result, _ = query_kernel(
-        body_a, body_b, pose, margin, 0.0, coarse, leaf, contact, stats, levels
-    )
-    counters = (
-        tuple(levels[: min(depth, len(levels))].tolist()),
-        int(stats[tb.STAT_ITERATIVE]),
-        int(stats[tb.STAT_FALLBACKS]),
-        int(unfoldings),
-        int(stats[tb.STAT_SPHERES]),
-    )
-    return result, counters
 
 
 def _active_sets(tree_a, tree_b, pose, kernel, precision, iterations):

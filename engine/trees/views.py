@@ -162,6 +162,7 @@ class TreeViews:
 
     def __init__(self, tree, geometry: TreeGeometry | None = None) -> None:
         self._tree = tree
+        self._query_sides: dict = {}
         self.geometry = (
             TreeGeometry(tree.triangles, tree.face, tree.parent) if geometry is None else geometry
         )
@@ -199,6 +200,58 @@ class TreeViews:
             node, verts = tree.parent[node][keep], verts[keep]
         out[:, 3] = radius + tree.leaf_epsilon
         return out
+
+    def query_side_a(self, precision: str) -> tuple:
+        """The A-side arguments of :func:`~engine.kernels.collision.pair_query.pair_query`
+        (computed once per precision): ``(coords (N, 9), frames (N, 14)`` in
+        ``precision``, ``epsilon, face, first_child, child_count (N,), spheres (N, 4),
+        face normals (F, 3) float64, extent, leaf ε)``."""
+        side = self._query_sides.get(precision)
+        if side is None:
+            nodes = self.geometry.node_set(precision, False)
+            side = (
+                nodes.coords_rm,
+                nodes.frames_rm,
+                *self.structure,
+                self.spheres,
+                self.geometry.face_normals,
+                self.geometry.extent,
+                self._tree.leaf_epsilon,
+            )
+            self._query_sides[precision] = side
+        return side
+
+    @cached_property
+    def query_side_b(self) -> tuple:
+        """The B-side arguments of :func:`~engine.kernels.collision.pair_query.pair_query`:
+        ``(coords (N, 9), frames (N, 14)`` float64 (the master set, body frame),
+        ``epsilon, face, first_child, child_count (N,), spheres (N, 4), extent, leaf ε,
+        number of faces)``."""
+        master = self.geometry.master
+        return (
+            master.coords_rm,
+            master.frames_rm,
+            *self.structure,
+            self.spheres,
+            self.geometry.extent,
+            self._tree.leaf_epsilon,
+            len(self.geometry.face_nodes),
+        )
+
+    @cached_property
+    def root_sphere(self) -> tuple[tuple[float, float, float], float]:
+        """The root's bounding sphere (:attr:`spheres` row 0) as Python floats:
+        ``((x, y, z), radius)``, body frame."""
+        x, y, z, radius = self.spheres[0].tolist()
+        return (x, y, z), radius
+
+    @cached_property
+    def root_reach(self) -> float:
+        """``|c| + r`` (float) of the root's bounding sphere (:attr:`spheres`, centre ``c``,
+        radius ``r``, body frame): every covered ε-region lies within this distance of the
+        body-frame origin, whatever the pose's rotation."""
+        centre, radius = self.spheres[0, :3], self.spheres[0, 3]
+        return float(np.sqrt(centre @ centre) + radius)
 
     @cached_property
     def distance_bounds(self) -> DistanceBounds:

@@ -13,8 +13,9 @@ parameters (iterative, or exact): a pair reported in contact or not converged is
 unfolded into the next level's front — *both* nodes unfold at once, each surrogate
 replaced by its children and a leaf standing for itself (:func:`_children`), so the
 pair becomes every pair of the two sides, one level per pair (pairs whose bounding
-spheres are apart are dropped). :func:`front_kernel` evaluates one such front for the
-multiscale step, whose host unfolds the hits by the same rule.
+spheres are apart are dropped: each side's children are first tested against the other
+side's node, then the survivors against each other). :func:`front_kernel` evaluates one
+such front for the multiscale step, whose host unfolds the hits by the same rule.
 """
 
 from __future__ import annotations
@@ -46,11 +47,8 @@ def query_kernel(
     (centre, radius) of its covered leaves' ε-regions; ``body_b``: the same for B
     except that coordinates and frames are B's float64 master arrays in its body
     frame. ``pose = (rotation (3, 3), shift (3,))`` maps B's frame to A's.
-    Surrogate ε get ``margin`` added.
+    Surrogate ε get ``margin`` added. The search is :func:`traverse`'s.
 
-    A node pair whose bounding spheres are apart (by more than ``margin``) cannot
-    hold a leaf pair in contact: it is pruned before any triangle comparison,
-    the root pair included; ``stats[STAT_SPHERES]`` counts such pairs.
     ``contact = (faces of B, keep_all, normals_a, setup)`` as in
     :func:`~engine.kernels.collision.contact_merge.contact_kernel`. ``stats`` (int64) is
     added to; ``levels`` (int64) receives the pairs evaluated per level (levels
@@ -66,43 +64,110 @@ def query_kernel(
     """
     coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
     master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
-    rotation, shift = pose
+    depth, unfoldings, n, found, near = traverse(
+        coords_a,
+        frames_a,
+        epsilon_a,
+        face_a,
+        first_a,
+        count_a,
+        spheres_a,
+        master_coords,
+        master_frames,
+        epsilon_b,
+        face_b,
+        first_b,
+        count_b,
+        spheres_b,
+        pose[0],
+        pose[1],
+        margin,
+        inflate,
+        coarse_params,
+        leaf_params,
+        stats,
+        levels,
+    )
+    return depth, unfoldings, _contacts(found, n, face_a, face_b, contact), near
+
+
+@njit(**JIT)
+def traverse(
+    coords_a,
+    frames_a,
+    epsilon_a,
+    face_a,
+    first_a,
+    count_a,
+    spheres_a,
+    master_coords,
+    master_frames,
+    epsilon_b,
+    face_b,
+    first_b,
+    count_b,
+    spheres_b,
+    rotation,
+    shift,
+    margin,
+    inflate,
+    coarse_params,
+    leaf_params,
+    stats,
+    levels,
+):
+    """The pair-front search (arguments as :func:`query_kernel`'s, flattened); returns
+    ``(depth, unfoldings, n, found, near)``: the first ``n`` rows of ``found``
+    (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) are the leaf pairs in
+    contact (A's frame), ``near`` as in :func:`query_kernel`.
+
+    A node pair whose bounding spheres are apart (by more than ``margin``) cannot hold a
+    leaf pair in contact: it is pruned before any triangle comparison, the root pair
+    included. A hit pair (i, j) unfolds in one pass: A's children are tested against
+    j's sphere and B's children against i's, then the surviving children against each
+    other; every child pair not put in the next front counts in ``stats[STAT_SPHERES]``.
+    The fronts are two buffers reused across levels (grown by doubling). B's nodes are
+    moved into A's frame, and the ε of both trees get their margin, only for the nodes
+    reached (a level's new B nodes moved together, by
+    :func:`~engine.kernels.collision.rigid.move_kernel`: the flat search's bits).
+    """
     dtype = coords_a.dtype
+    na = coords_a.shape[0]
     nb = master_coords.shape[0]
+    reach = margin + 2.0 * inflate  # added to the sum of two bounding radii
     centres_b = np.empty((nb, 3))  # B's sphere centres in A's frame, once needed
     centred = np.zeros(nb, np.bool_)
+    _centre(spheres_b, centres_b, centred, ZERO, rotation, shift)
+    if _far(spheres_a, ZERO, centres_b, spheres_b, ZERO, reach):  # before any other set-up
+        stats[STAT_SPHERES] += 1
+        return ZERO, ZERO, ZERO, result_buffers(0, coords_a), np.zeros((0, 2), np.int64)
+    moved = np.zeros(nb, np.bool_)  # B's node moved, its ε set
+    seen_a = np.zeros(na, np.bool_)  # A's node ε set
     coords_b = np.empty((nb, 9), dtype)
     frames_b = np.empty((nb, 14), dtype)
-    moved = np.zeros(nb, np.bool_)
-    to_move = np.zeros(nb, np.int64)  # the root first
-    move_kernel(master_coords, master_frames, to_move[:1], rotation, shift, coords_b, frames_b)
-    moved[0] = True
-    eps_a = np.empty(epsilon_a.shape[0], dtype)
+    eps_a = np.empty(na, dtype)
     eps_b = np.empty(nb, dtype)
-    margin_kernel(epsilon_a, face_a, margin, eps_a)
-    margin_kernel(epsilon_b, face_b, margin, eps_b)
-    if inflate > 0.0:
-        eps_a += inflate
-        eps_b += inflate
-    reach = margin + 2.0 * inflate  # added to the sum of two bounding radii
+    found = result_buffers(256, coords_a)
+    to_move = np.zeros(64, np.int64)  # the root first
+    move_kernel(master_coords, master_frames, to_move[:1], rotation, shift, coords_b, frames_b)
+    moved[0], seen_a[0] = True, True
+    _eps(epsilon_a, face_a, ZERO, margin, inflate, eps_a)
+    _eps(epsilon_b, face_b, ZERO, margin, inflate, eps_b)
     rm = (coords_a, frames_a, coords_b, frames_b)
     buffers = listed_workspace(coords_a)
-    found = result_buffers(256, coords_a)
     hits = result_buffers(256, coords_a)
-    pruned = ZERO
-    if _apart(spheres_a, ZERO, spheres_b, centres_b, centred, ZERO, rotation, shift, reach):
-        front = np.zeros((0, 2), np.int64)
-        pruned += 1
-    else:
-        front = np.zeros((1, 2), np.int64)
+    front = np.zeros((256, 2), np.int64)
+    following = np.empty((256, 2), np.int64)
     finest = np.empty((256, 2), np.int64)
     coarse = np.empty((256, 2), np.int64)
-    n = ZERO
+    keep_a = np.empty(64, np.int64)  # the children of one side that survive
+    keep_b = np.empty(64, np.int64)
+    m = np.int64(1)
+    pruned = ZERO
     depth = ZERO
     unfoldings = ZERO
     nf = ZERO  # leaf pairs, evaluated together once the front is exhausted
-    while front.shape[0] > 0:
-        m = front.shape[0]
+    while m > 0:
         if depth < levels.shape[0]:
             levels[depth] = m
         depth += 1
@@ -127,12 +192,6 @@ def query_kernel(
         )
         hi, hj = hits[0], hits[1]
         unfoldings += h
-        size = ZERO
-        for k in range(h):
-            a0, a1 = _children(face_a, first_a, count_a, hi[k])
-            b0, b1 = _children(face_b, first_b, count_b, hj[k])
-            size += (a1 - a0) * (b1 - b0)
-        front = np.empty((size, 2), np.int64)
         r = ZERO
         new = ZERO
         for k in range(h):
@@ -140,25 +199,46 @@ def query_kernel(
             # both nodes unfold (a leaf stands for itself): every pair of the two sides
             a0, a1 = _children(face_a, first_a, count_a, i)
             b0, b1 = _children(face_b, first_b, count_b, j)
+            if keep_a.shape[0] < a1 - a0:
+                keep_a = np.empty(2 * (a1 - a0), np.int64)
+            if keep_b.shape[0] < b1 - b0:
+                keep_b = np.empty(2 * (b1 - b0), np.int64)
+            ka = ZERO  # A's children near j's sphere (a leaf i: itself, tested with j)
             for ca in range(a0, a1):
-                if b1 - b0 > 1 and _apart(
-                    spheres_a, ca, spheres_b, centres_b, centred, j, rotation, shift, reach
-                ):
-                    pruned += b1 - b0
-                    continue
-                for cb in range(b0, b1):
-                    if _apart(
-                        spheres_a, ca, spheres_b, centres_b, centred, cb, rotation, shift, reach
-                    ):
-                        pruned += 1
+                if a1 - a0 == 1 or not _far(spheres_a, ca, centres_b, spheres_b, j, reach):
+                    keep_a[ka] = ca
+                    ka += 1
+            kb = ZERO  # B's children near i's sphere
+            for cb in range(b0, b1):
+                _centre(spheres_b, centres_b, centred, cb, rotation, shift)
+                if b1 - b0 == 1 or not _far(spheres_a, i, centres_b, spheres_b, cb, reach):
+                    keep_b[kb] = cb
+                    kb += 1
+            cross = a1 - a0 > 1 and b1 - b0 > 1  # else the tests above were the pairs'
+            if following.shape[0] < r + ka * kb:
+                following = _grown_pairs(following, r, r + ka * kb)
+            r0 = r
+            for u in range(ka):
+                ca = keep_a[u]
+                for v in range(kb):
+                    cb = keep_b[v]
+                    if cross and _far(spheres_a, ca, centres_b, spheres_b, cb, reach):
                         continue
+                    following[r, 0], following[r, 1] = ca, cb
+                    r += 1
+                    if not seen_a[ca]:
+                        seen_a[ca] = True
+                        _eps(epsilon_a, face_a, ca, margin, inflate, eps_a)
                     if not moved[cb]:
                         moved[cb] = True
+                        _eps(epsilon_b, face_b, cb, margin, inflate, eps_b)
+                        if new == to_move.shape[0]:
+                            to_move = _grown(to_move, new)
                         to_move[new] = cb
                         new += 1
-                    front[r, 0], front[r, 1] = ca, cb
-                    r += 1
-        front = front[:r]
+            pruned += (a1 - a0) * (b1 - b0) - (r - r0)
+        front, following = following, front
+        m = r
         move_kernel(
             master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b
         )
@@ -169,10 +249,14 @@ def query_kernel(
     near[:, 0] = found[0][:n]
     near[:, 1] = found[1][:n]
     if inflate > 0.0:  # the near pairs at their true ε
-        margin_kernel(epsilon_a, face_a, margin, eps_a)
-        margin_kernel(epsilon_b, face_b, margin, eps_b)
+        for t in range(na):
+            if seen_a[t]:
+                _eps(epsilon_a, face_a, t, margin, 0.0, eps_a)
+        for t in range(nb):
+            if moved[t]:
+                _eps(epsilon_b, face_b, t, margin, 0.0, eps_b)
         n = listed_kernel(rm, eps_a, eps_b, near, ZERO, n, leaf_params, buffers, found, ZERO, stats)
-    return depth, unfoldings, _contacts(found, n, face_a, face_b, contact), near
+    return depth, unfoldings, n, found, near
 
 
 @njit(**JIT)
@@ -345,6 +429,46 @@ def _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, marg
     dz = spheres_a[i, 2] - centres_b[j, 2]
     reach = spheres_a[i, 3] + spheres_b[j, 3] + margin
     return dx * dx + dy * dy + dz * dz > reach * reach
+
+
+@njit(**INLINE)
+def _centre(spheres_b, centres_b, centred, j, rotation, shift):
+    """B's sphere centre ``j`` moved into A's frame, into ``centres_b[j]``, once."""
+    if not centred[j]:
+        x, y, z = spheres_b[j, 0], spheres_b[j, 1], spheres_b[j, 2]
+        for c in range(3):
+            centres_b[j, c] = (
+                rotation[c, 0] * x + rotation[c, 1] * y + rotation[c, 2] * z + shift[c]
+            )
+        centred[j] = True
+
+
+@njit(**INLINE)
+def _far(spheres_a, i, centres_b, spheres_b, j, margin):
+    """As :func:`_apart` for a B node already centred (:func:`_centre`)."""
+    dx = spheres_a[i, 0] - centres_b[j, 0]
+    dy = spheres_a[i, 1] - centres_b[j, 1]
+    dz = spheres_a[i, 2] - centres_b[j, 2]
+    reach = spheres_a[i, 3] + spheres_b[j, 3] + margin
+    return dx * dx + dy * dy + dz * dz > reach * reach
+
+
+@njit(**INLINE)
+def _eps(epsilon, face, i, margin, inflate, out):
+    """``out[i]``: node ``i``'s ε plus ``margin`` if a surrogate, rounded to ``out``'s
+    dtype, then plus ``inflate`` (as :func:`~engine.kernels.collision.rigid.margin_kernel`
+    and an in-place ``+= inflate`` would write it)."""
+    out[i] = epsilon[i] + (margin if face[i] < 0 else 0.0)
+    if inflate > 0.0:
+        out[i] += inflate
+
+
+@njit(**JIT)
+def _grown(index, n):
+    """``(2·len,)`` int64 holding the first ``n`` entries of ``index``."""
+    grown = np.empty(2 * index.shape[0], np.int64)
+    grown[:n] = index[:n]
+    return grown
 
 
 @njit(**JIT)

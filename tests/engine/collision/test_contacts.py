@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from engine import InvalidArgumentError, build_tree, shapes
+from engine.collision import contacts
 from engine.collision.contacts import find_contacts
 from engine.geometry.pose import Pose
 
@@ -218,3 +221,169 @@ def test_bad_iteration_counts_are_rejected(trees, iterations):
     t, p = trees["box"], Pose.identity()
     with pytest.raises(InvalidArgumentError, match="iterations"):
         find_contacts(t, p, t, p, iterations=iterations)
+
+
+def _turning(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A unit quaternion (w, x, y, z) whose rotation takes unit ``u`` to unit ``v``."""
+    w = 1.0 + float(u @ v)
+    if w < 1e-9:  # opposite: half a turn about any axis perpendicular to u
+        axis = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return np.array([0.0, *(axis / np.linalg.norm(axis))])
+    q = np.array([w, *np.cross(u, v)])
+    return q / np.linalg.norm(q)
+
+
+def _off_centre(offset) -> object:
+    """A box whose mesh-frame origin lies outside it: its root sphere centre is far from
+    the origin, so the early-out's rotation-free bound is tight only when both centres
+    face each other."""
+    mesh = shapes.box(extents=(0.8, 0.5, 0.3))
+    matrix = np.eye(4)
+    matrix[:3, 3] = offset
+    return build_tree(mesh.transformed(matrix), epsilon=0.02, seed=0)
+
+
+OFF_CENTRE = {
+    "a": _off_centre([0.9, -0.4, 0.2]),
+    "b": _off_centre([-0.3, 0.7, -0.5]),
+    "sphere": build_tree(shapes.icosphere(1), epsilon=0.02, seed=0),
+}
+
+
+def _at_threshold(tree_a, tree_b, excess: float, turn_a, turn_b) -> tuple[Pose, Pose]:
+    """Poses whose root spheres face each other along x (up to small extra turns
+    ``turn_* (4,)``) with positions ``R_a + R_b + excess`` apart."""
+    ca, cb = tree_a.views.spheres[0, :3], tree_b.views.spheres[0, :3]
+    x = np.array([1.0, 0.0, 0.0])
+    qa = _turning(ca / np.linalg.norm(ca), x) if np.linalg.norm(ca) > 1e-9 else [1, 0, 0, 0]
+    qb = _turning(cb / np.linalg.norm(cb), -x) if np.linalg.norm(cb) > 1e-9 else [1, 0, 0, 0]
+    pa = Pose([0.0, 0.0, 0.0], qa).compose(Pose([0.0, 0.0, 0.0], turn_a))
+    pa = Pose([0.3, -0.2, 0.1], pa.orientation)
+    pb = Pose([0.0, 0.0, 0.0], qb).compose(Pose([0.0, 0.0, 0.0], turn_b))
+    distance = tree_a.views.root_reach + tree_b.views.root_reach + excess
+    pb = Pose(pa.position + distance * x, pb.orientation)
+    return pa, pb
+
+
+def _small_turn(angle: float, axis) -> np.ndarray:
+    axis = np.asarray(axis, float)
+    axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 1e-9 else np.array([0, 0, 1.0])
+    return np.array([np.cos(angle / 2), *(np.sin(angle / 2) * axis)])
+
+
+def _slack(tree_a, tree_b, distance: float) -> float:
+    scale = np.sqrt(3) * (tree_a.views.geometry.extent + tree_b.views.geometry.extent) + distance
+    return contacts._FAR_SLACK * scale
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    pair=st.sampled_from([("a", "b"), ("b", "a"), ("a", "sphere"), ("sphere", "sphere")]),
+    excess=st.floats(-3.0, 3.0),
+    ulps=st.integers(-8, 8),
+    angle_a=st.floats(0.0, 1e-3),
+    angle_b=st.floats(0.0, 1e-3),
+    axis=st.tuples(*[st.floats(-1.0, 1.0)] * 3),
+    kernel=st.sampled_from(["hybrid", "exact"]),
+    precision=st.sampled_from(["float64", "float32"]),
+)
+def test_far_early_out_never_drops_what_the_kernel_keeps(
+    pair, excess, ulps, angle_a, angle_b, axis, kernel, precision
+):
+    """Poses right at the early-out's threshold (``excess`` in units of its slack, plus a
+    few ulp): whenever :func:`far_apart` settles a query, the multiresolution kernel run
+    on the same arguments prunes the root pair too, so both return no contact and the
+    same counters; otherwise ``find_contacts`` is the kernel's result."""
+    ta, tb = OFF_CENTRE[pair[0]], OFF_CENTRE[pair[1]]
+    reach = ta.views.root_reach + tb.views.root_reach
+    gap = excess * _slack(ta, tb, reach)
+    gap = float(np.nextafter(gap, np.inf if ulps > 0 else -np.inf)) if ulps else gap
+    turn_a, turn_b = _small_turn(angle_a, axis), _small_turn(angle_b, axis[::-1])
+    pa, pb = _at_threshold(ta, tb, gap, turn_a, turn_b)
+    got = find_contacts(ta, pa, tb, pb, kernel=kernel, precision=precision)
+    ref = contacts._search(ta, pa, tb, pb, kernel, True, precision, "pairs", 1)
+    np.testing.assert_array_equal(got.pairs, ref.pairs)
+    np.testing.assert_array_equal(got.points, ref.points)
+    assert got.stats == ref.stats
+    if contacts.far_apart(ta, pa, tb, pb):
+        assert got is contacts.FAR_APART
+        assert ref.stats == contacts.FAR_APART.stats  # the kernel pruned the root pair
+
+
+def test_far_early_out_threshold_and_result():
+    """Just above the threshold the early-out returns the shared empty result (read-only,
+    the kernel's counters for a pruned root); just below it the kernel runs, and closer
+    still (within the kernel's own margin) the kernel no longer prunes the root."""
+    ta, tb = OFF_CENTRE["a"], OFF_CENTRE["b"]
+    reach = ta.views.root_reach + tb.views.root_reach
+    slack = _slack(ta, tb, reach)
+    unit_turn = np.array([1.0, 0.0, 0.0, 0.0])
+    above = _at_threshold(ta, tb, 1.01 * slack, unit_turn, unit_turn)
+    below = _at_threshold(ta, tb, 0.99 * slack, unit_turn, unit_turn)
+    touching = _at_threshold(ta, tb, -1e-6, unit_turn, unit_turn)
+    assert contacts.far_apart(ta, *above[:1], tb, above[1])
+    res = find_contacts(ta, above[0], tb, above[1])
+    assert res is contacts.FAR_APART and len(res.pairs) == len(res.points) == 0
+    assert res.stats.sphere_pruned == 1 and res.stats.comparisons_per_level == ()
+    assert not res.points.flags.writeable and not res.pairs.flags.writeable
+    assert (
+        res.stats
+        == contacts._search(
+            ta, *above[:1], tb, above[1], "hybrid", True, "float64", "pairs", 1
+        ).stats
+    )
+    assert not contacts.far_apart(ta, below[0], tb, below[1])
+    assert find_contacts(ta, below[0], tb, below[1]) is not contacts.FAR_APART
+    near = find_contacts(ta, touching[0], tb, touching[1])
+    assert near.stats.comparisons_per_level[:1] == (1,)  # the root pair was evaluated
+    # the flat and active-set searches keep their own counters (no early-out)
+    flat = find_contacts(ta, above[0], tb, above[1], hierarchy=False)
+    assert flat.stats.comparisons > 0 and flat.stats.sphere_pruned == 0
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    pair=st.sampled_from([("a", "b"), ("b", "a"), ("a", "sphere")]),
+    excess=st.floats(-3.0, 3.0),
+    qa=st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1),
+    qb=st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1),
+    direction=st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda d: np.linalg.norm(d) > 0.1),
+    precision=st.sampled_from(["float64", "float32"]),
+)
+def test_far_early_out_with_turned_off_centre_bodies(pair, excess, qa, qb, direction, precision):
+    """Off-centre bodies at any rotations, their root spheres' world-frame centres
+    ``r_a + r_b + excess·slack`` apart: the early-out's second (world-frame) test fires
+    only where the kernel prunes the root pair too."""
+    ta, tb = OFF_CENTRE[pair[0]], OFF_CENTRE[pair[1]]
+    pa = Pose([0.2, -0.1, 0.3], np.array(qa) / np.linalg.norm(qa))
+    rotation_b = Pose([0, 0, 0], np.array(qb) / np.linalg.norm(qb))
+    u = np.array(direction) / np.linalg.norm(direction)
+    (ca, ra), (cb, rb) = ta.views.root_sphere, tb.views.root_sphere
+    centre_a = pa.apply(np.array(ca))
+    distance = np.linalg.norm(centre_a + 3 * u - pa.position)  # about the positions' gap
+    centre_b = centre_a + (ra + rb + excess * _slack(ta, tb, distance)) * u
+    pb = Pose(centre_b - rotation_b.rotation @ np.array(cb), rotation_b.orientation)
+    got = find_contacts(ta, pa, tb, pb, precision=precision)
+    ref = contacts._search(ta, pa, tb, pb, "hybrid", True, precision, "pairs", 1)
+    np.testing.assert_array_equal(got.pairs, ref.pairs)
+    assert got.stats == ref.stats
+    if contacts.far_apart(ta, pa, tb, pb):
+        assert ref.stats == contacts.FAR_APART.stats
+
+
+def test_far_early_out_places_off_centre_spheres():
+    """Two off-centre bodies whose positions nearly coincide but whose root spheres are
+    turned apart: the rotation-free bound cannot settle it, the world-frame test does."""
+    ta, tb = OFF_CENTRE["a"], OFF_CENTRE["b"]
+    (ca, ra), (cb, rb) = ta.views.root_sphere, tb.views.root_sphere
+    x = np.array([1.0, 0.0, 0.0])
+    pa = Pose([0.0, 0.0, 0.0], _turning(np.array(ca) / np.linalg.norm(ca), -x))
+    pb = Pose([0.05, 0.0, 0.0], _turning(np.array(cb) / np.linalg.norm(cb), x))
+    gap = np.linalg.norm(pb.apply(np.array(cb)) - pa.apply(np.array(ca))) - ra - rb
+    assert gap > 0.1 and ta.views.root_reach + tb.views.root_reach > 0.05
+    assert contacts.far_apart(ta, pa, tb, pb)
+    got = find_contacts(ta, pa, tb, pb)
+    assert got is contacts.FAR_APART
+    assert contacts._search(ta, pa, tb, pb, "hybrid", True, "float64", "pairs", 1).stats == (
+        got.stats
+    )

@@ -1,0 +1,137 @@
+"""One body pair's whole multiresolution contact query in one call with flat arguments.
+
+:func:`pair_query` is what :func:`engine.collision.contacts.find_contacts` calls: the
+relative pose, the surrogate ε margin, the traversal
+(:func:`~engine.kernels.collision.traversal.traverse`) and the merged contacts, from
+arrays and scalars only. Numba unboxes a flat argument list several times faster than
+nested tuples of arrays, and the contacts are written into the caller's buffers instead of
+being returned as new arrays (boxing a tuple of arrays costs microseconds), so the fixed
+cost of a query is a few microseconds. The pose helpers are the batch's
+(:mod:`engine.kernels.collision.batch`, compiled without fast-math): the same rotations and
+shifts bit for bit, hence the same contacts as :func:`~engine.kernels.collision.batch.batch_kernel`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.contact_merge import contact_kernel
+from engine.kernels.collision.traversal import traverse
+from engine.kernels.geometry.triangle_batch import N_STATS
+from engine.kernels.jit import JIT
+
+# Entries of the integer tuple pair_query returns.
+QUERY_FOUND, QUERY_PAIRS, QUERY_CONTACTS, QUERY_DEPTH, QUERY_UNFOLDINGS = range(5)
+
+
+@njit(**JIT)
+def pair_query(
+    coords_a,
+    frames_a,
+    epsilon_a,
+    face_a,
+    first_a,
+    count_a,
+    spheres_a,
+    normals_a,
+    extent_a,
+    leaf_epsilon_a,
+    master_coords,
+    master_frames,
+    epsilon_b,
+    face_b,
+    first_b,
+    count_b,
+    spheres_b,
+    extent_b,
+    leaf_epsilon_b,
+    n_faces_b,
+    position_a,
+    orientation_a,
+    position_b,
+    orientation_b,
+    ulp,
+    coarse_mode,
+    leaf_mode,
+    iterations,
+    rtol,
+    one,
+    band,
+    keep_all,
+    tiny,
+    merge_radius,
+    counters,
+    out_pairs,
+    out_points,
+    out_normals,
+    out_overlaps,
+):
+    """Contacts of body A (its nodes ``coords_a … spheres_a`` as
+    :func:`~engine.kernels.collision.traversal.query_kernel`'s ``body_a``, face normals
+    ``normals_a (F, 3)`` float64, largest body-frame coordinate ``extent_a``, leaf ε) at
+    ``position_a (3,)``, ``orientation_a (4,)`` (unit quaternion) and body B
+    (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b`` faces) at ``position_b``,
+    ``orientation_b``. The arguments come in four groups: A's, B's (each fixed per tree,
+    so the host keeps them as one tuple per tree), the poses, and the parameters.
+
+    ``extent_*``, ``ulp``: the query margin's inputs
+    (:func:`~engine.kernels.collision.batch.query_margin`); ``coarse_mode``, ``leaf_mode``
+    (int64), ``iterations`` (int64), ``rtol``, ``one``, ``band`` (the query dtype): the
+    surrogate and leaf kernel parameters; ``n_faces_b``, ``keep_all``, the leaf ε of
+    both, ``tiny`` and ``merge_radius``: the contact set-up
+    (:func:`~engine.kernels.collision.contact_merge.contact_kernel`).
+
+    ``counters (N_STATS + L,)`` int64: the traversal's stats (added to), then the pairs
+    evaluated per level. The contacts go to ``out_pairs (c, 2)`` int64, ``out_points,
+    out_normals (c, 3)``, ``out_overlaps (c,)`` float64 when the ``f`` leaf pairs found fit
+    (``f ≤ c``); else nothing is written and the caller runs the query again with room
+    for ``f``. Returns ``(f, m, k, depth, unfoldings)`` (int64; ``m``, ``k`` the pair and
+    merged-contact counts, −1 when nothing was written).
+    """
+    rot_a, rotation, shift = relative_pose(position_a, orientation_a, position_b, orientation_b)
+    margin = query_margin(extent_a, extent_b, shift, ulp)
+    stats = counters[:N_STATS]
+    levels = counters[N_STATS:]
+    depth, unfoldings, n, found, near = traverse(
+        coords_a,
+        frames_a,
+        epsilon_a,
+        face_a,
+        first_a,
+        count_a,
+        spheres_a,
+        master_coords,
+        master_frames,
+        epsilon_b,
+        face_b,
+        first_b,
+        count_b,
+        spheres_b,
+        rotation,
+        shift,
+        margin,
+        0.0,
+        (coarse_mode, iterations, rtol, one, band),
+        (leaf_mode, iterations, rtol, one, band),
+        stats,
+        levels,
+    )
+    if n > out_pairs.shape[0]:
+        return n, np.int64(-1), np.int64(-1), depth, unfoldings
+    position = np.empty(3)  # contact_kernel's set-up takes writable arrays
+    position[:] = position_a
+    setup = (leaf_epsilon_a, leaf_epsilon_b, tiny, merge_radius, rot_a, position)
+    m, k = contact_kernel(
+        found,
+        n,
+        face_a,
+        face_b,
+        n_faces_b,
+        keep_all,
+        normals_a,
+        setup,
+        (out_pairs, out_points, out_normals, out_overlaps),
+    )
+    return n, np.int64(m), np.int64(k), depth, unfoldings

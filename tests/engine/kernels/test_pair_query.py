@@ -1,0 +1,150 @@
+"""The flat-argument query kernel: the same contacts as the nested-argument traversal
+(``query_kernel``, which the batch runs), and its room protocol (nothing written when the
+leaf pairs found do not fit; the host then runs it again with room)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from engine import Pose, build_tree, shapes
+from engine.collision import contacts
+from engine.collision.contacts import ContactSet, ContactStats, find_contacts
+from engine.collision.query import TINY, ULP, query_parameters
+from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.pair_query import pair_query
+from engine.kernels.collision.traversal import query_kernel
+from engine.kernels.geometry import triangle_batch as tb
+
+LEVELS = 64
+
+
+@pytest.fixture(scope="module")
+def trees():
+    return build_tree(shapes.noisy_sphere(2, seed=4), 0.02, seed=1), build_tree(
+        shapes.torus(), 0.02, seed=1
+    )
+
+
+def _poses(seed: int, count: int):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        q, direction = rng.normal(size=4), rng.normal(size=3)
+        qa = rng.normal(size=4)
+        pa = Pose(rng.normal(size=3), qa / np.linalg.norm(qa))
+        reach = rng.uniform(0.6, 2.6)
+        pb = Pose(
+            pa.position + reach * direction / np.linalg.norm(direction), q / np.linalg.norm(q)
+        )
+        yield pa, pb
+
+
+def _run(ta, pa, tb_, pb, precision, capacity):
+    parameters = contacts._parameters("hybrid", precision, 1)
+    counters = np.zeros(tb.N_STATS + LEVELS, np.int64)
+    out = (
+        np.empty((capacity, 2), np.int64),
+        np.empty((capacity, 3)),
+        np.empty((capacity, 3)),
+        np.empty(capacity),
+    )
+    tiny = TINY * max(ta.bounding_radius, tb_.bounding_radius)
+    merge = min(ta.leaf_epsilon, tb_.leaf_epsilon)
+    found, m, k, depth, unfoldings = pair_query(
+        *ta.views.query_side_a(precision),
+        *tb_.views.query_side_b,
+        pa.position,
+        pa.orientation,
+        pb.position,
+        pb.orientation,
+        *parameters,
+        tiny,
+        merge,
+        counters,
+        *out,
+    )
+    return found, m, k, depth, unfoldings, counters, out
+
+
+def _nested(ta, pa, tb_, pb, precision):
+    """The same query through ``query_kernel`` (nested arguments, as the batch calls it)."""
+    dtype = np.dtype(precision).type
+    rot_a, rotation, shift = relative_pose(pa.position, pa.orientation, pb.position, pb.orientation)
+    sa, master = ta.views.geometry.node_set(precision, False), tb_.views.geometry.master
+    body_a = (sa.coords_rm, sa.frames_rm, *ta.views.structure, ta.views.spheres)
+    body_b = (master.coords_rm, master.frames_rm, *tb_.views.structure, tb_.views.spheres)
+    coarse, leaf = query_parameters("hybrid", dtype, 1)
+    contact = contacts._contact_setup(ta, tb_, rot_a, pa.position.copy(), "hybrid")
+    margin = query_margin(ta.views.geometry.extent, tb_.views.geometry.extent, shift, ULP[dtype])
+    stats, levels = np.zeros(tb.N_STATS, np.int64), np.zeros(LEVELS, np.int64)
+    depth, unfoldings, result, _ = query_kernel(
+        body_a, body_b, (rotation, shift), margin, 0.0, coarse, leaf, contact, stats, levels
+    )
+    return depth, unfoldings, result, stats, levels
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_flat_entry_equals_nested_traversal(trees, precision):
+    ta, tb_ = trees
+    touching = 0
+    for pa, pb in _poses(3, 40):
+        found, m, k, depth, unfoldings, counters, out = _run(ta, pa, tb_, pb, precision, 4096)
+        depth2, unfoldings2, result, stats, levels = _nested(ta, pa, tb_, pb, precision)
+        assert m >= 0 and found >= m
+        assert (depth, unfoldings) == (depth2, unfoldings2)
+        np.testing.assert_array_equal(counters[: tb.N_STATS], stats)
+        np.testing.assert_array_equal(counters[tb.N_STATS :], levels)
+        for got, want in zip((out[0][:m], *(x[:k] for x in out[1:])), result, strict=True):
+            np.testing.assert_array_equal(got, want)
+        touching += m > 0
+    assert 0 < touching < 40
+
+
+def test_without_room_nothing_is_written(trees):
+    ta, tb_ = trees
+    for pa, pb in _poses(5, 40):
+        flat = find_contacts(ta, pa, tb_, pb, kernel="exact", hierarchy=False)
+        if len(flat.pairs) >= 8:
+            break
+    else:
+        pytest.fail("no pose with 8 contact pairs")
+    found, m, k, *_ = _run(ta, pa, tb_, pb, "float64", 4)
+    assert found >= len(flat.pairs) and m == k == -1
+    found, m, k, *_, out = _run(ta, pa, tb_, pb, "float64", found)
+    assert m == len(flat.pairs)
+    np.testing.assert_array_equal(out[0][:m], flat.pairs)
+
+
+def test_many_leaf_pairs_grow_the_room():
+    """A deep overlap of two 1,280-triangle spheres finds far more leaf pairs than the
+    first room (64): the query runs again with room and returns the flat search's pairs."""
+    tree = build_tree(shapes.icosphere(3), 0.01)
+    pa, pb = Pose.identity(), Pose([1.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    contacts._capacity.pop((id(tree), id(tree)), None)
+    got = find_contacts(tree, pa, tree, pb)
+    flat = find_contacts(tree, pa, tree, pb, kernel="exact", hierarchy=False)
+    assert len(flat.pairs) > 64
+    np.testing.assert_array_equal(got.pairs, flat.pairs)
+    assert contacts._capacity[(id(tree), id(tree))] >= len(flat.pairs)
+    again = find_contacts(tree, pa, tree, pb)  # with the hint: one run
+    np.testing.assert_array_equal(again.pairs, got.pairs)
+    np.testing.assert_array_equal(again.points, got.points)
+    assert again.stats == got.stats
+
+
+def test_results_are_ordinary_frozen_dataclasses(trees):
+    """The host builds ContactSet and ContactStats without their __init__: they compare,
+    hash, copy and refuse assignment as the dataclasses do."""
+    ta, tb_ = trees
+    pa, pb = next(iter(_poses(3, 1)))
+    got = find_contacts(ta, pa, tb_, pb)
+    s = got.stats
+    built = ContactStats(*(getattr(s, f.name) for f in dataclasses.fields(ContactStats)))
+    assert s == built and hash(s) == hash(built) and repr(s) == repr(built)
+    assert isinstance(got, ContactSet) and dataclasses.replace(s, iterative=0).iterative == 0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.iterative = 1
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        got.points = None
