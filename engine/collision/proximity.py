@@ -37,7 +37,6 @@ the exact kernel over every face pair (the tests compare it with every face pair
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,8 +100,8 @@ def mesh_distance(
     """
     check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     dtype = check_precision(precision)
-    rows_a, rows_b = _node_rows(tree_a), _node_rows(tree_b)
-    prepared_a = rows_a if dtype is np.float64 else _prepared(tree_a, rows_a, precision)
+    rows_a, rows_b = tree_a.views.distance_rows, tree_b.views.distance_rows
+    prepared_a = rows_a if dtype is np.float64 else tree_a.views.prepared_rows(precision)
     out_i, out_f = np.empty(ds.N_OUT_I, np.int64), np.empty(ds.N_OUT_F)
     ds.distance_kernel(
         prepared_a, rows_a, rows_b,
@@ -121,45 +120,3 @@ def mesh_distance(
         largest_front=largest,
         sphere_pruned=pruned,
     )
-
-
-_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _node_rows(tree: SurrogateTree) -> np.ndarray:
-    """``(N, N_COLUMNS)`` float64 node rows of ``tree`` as
-    :func:`~engine.kernels.collision.distance_search.distance_kernel` reads them (see
-    :mod:`~engine.kernels.collision.distance_search`), built on first use, kept with it."""
-    rows = _ROWS.get(tree)
-    if rows is None:
-        views = tree.views
-        master, bounds = views.geometry.master, views.distance_bounds
-        rows = np.empty((len(tree), ds.N_COLUMNS))
-        rows[:, ds.COORDS : ds.COORDS + 9] = master.coords_rm
-        rows[:, ds.FRAMES : ds.FRAMES + 14] = master.frames_rm
-        rows[:, ds.CENTRE : ds.CENTRE + 3] = bounds.centre
-        rows[:, ds.RADIUS] = bounds.radius
-        rows[:, ds.GAP] = bounds.gap
-        rows[:, ds.FIRST] = bounds.first_child
-        rows[:, ds.COUNT] = np.where(bounds.leaf, 0, bounds.child_count)
-        rows[:, ds.FACE] = tree.face
-        rows[:, ds.EXTENT] = views.geometry.extent
-        rows.flags.writeable = False
-        rows = _ROWS[tree] = rows
-    return rows
-
-
-_PREPARED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _prepared(tree: SurrogateTree, rows: np.ndarray, precision: str) -> np.ndarray:
-    """``(N, 23)`` A's prepared triangles and frames in ``precision`` (float32), row-major:
-    the float64 rows rounded, as :meth:`~engine.trees.views.TreeGeometry.node_set` rounds
-    them; built on first use, kept with the tree."""
-    found = _PREPARED.get(tree)
-    if found is None:
-        nodes = tree.views.geometry.node_set(precision, False)
-        found = np.ascontiguousarray(np.hstack([nodes.coords_rm, nodes.frames_rm]))
-        found.flags.writeable = False
-        _PREPARED[tree] = found
-    return found

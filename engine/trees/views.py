@@ -17,6 +17,7 @@ import numpy as np
 
 from engine.geometry.distance import TriangleSet
 from engine.geometry.mesh import Mesh
+from engine.kernels.collision import distance_search as ds
 
 __all__ = ["DistanceBounds", "TreeGeometry", "TreeStructure", "TreeViews"]
 
@@ -163,6 +164,7 @@ class TreeViews:
     def __init__(self, tree, geometry: TreeGeometry | None = None) -> None:
         self._tree = tree
         self._query_sides: dict = {}
+        self._prepared_rows: dict = {}
         self.geometry = (
             TreeGeometry(tree.triangles, tree.face, tree.parent) if geometry is None else geometry
         )
@@ -267,3 +269,36 @@ class TreeViews:
             ball[:, :3],
             np.maximum(ball[:, 3] - tree.leaf_epsilon, 0.0),
         )
+
+    @cached_property
+    def distance_rows(self) -> np.ndarray:
+        """``(N, N_COLUMNS)`` float64 read-only node rows as
+        :func:`~engine.kernels.collision.distance_search.distance_kernel` reads them (the
+        column layout is that module's): each node's triangle and frame (the master set),
+        bounding sphere, ``g``, children, face and the tree's extent."""
+        master, bounds = self.geometry.master, self.distance_bounds
+        rows = np.empty((len(self._tree), ds.N_COLUMNS))
+        rows[:, ds.COORDS : ds.COORDS + 9] = master.coords_rm
+        rows[:, ds.FRAMES : ds.FRAMES + 14] = master.frames_rm
+        rows[:, ds.CENTRE : ds.CENTRE + 3] = bounds.centre
+        rows[:, ds.RADIUS] = bounds.radius
+        rows[:, ds.GAP] = bounds.gap
+        rows[:, ds.FIRST] = bounds.first_child
+        rows[:, ds.COUNT] = np.where(bounds.leaf, 0, bounds.child_count)
+        rows[:, ds.FACE] = self._tree.face
+        rows[:, ds.EXTENT] = self.geometry.extent
+        rows.flags.writeable = False
+        return rows
+
+    def prepared_rows(self, precision: str) -> np.ndarray:
+        """``(N, 23)`` read-only node triangles and frames in ``precision``, row-major (the
+        float64 master rows rounded as :meth:`TreeGeometry.node_set` rounds them): the A
+        side of :func:`~engine.kernels.collision.distance_search.distance_kernel` in
+        float32; computed once per precision."""
+        rows = self._prepared_rows.get(precision)
+        if rows is None:
+            nodes = self.geometry.node_set(precision, False)
+            rows = np.ascontiguousarray(np.hstack([nodes.coords_rm, nodes.frames_rm]))
+            rows.flags.writeable = False
+            self._prepared_rows[precision] = rows
+        return rows
