@@ -34,7 +34,7 @@ weighted by the ε's (midpoint for equal ε), the normal points from A to B ((q 
 A's face normal when p and q coincide) and the overlap is ε_a + ε_b − d, clipped to
 [0, ε_a + ε_b]. The points of one body pair are then merged greedily, deepest first: a
 point within the smaller ε of a cluster's first point joins it, and each cluster becomes
-its average (normals averaged and renormalised, overlaps averaged).
+its average (overlaps averaged) with the normal of its deepest member.
 """
 
 from __future__ import annotations
