@@ -208,22 +208,21 @@ def _parameters(kernel: str, precision: str, iterations: int) -> tuple:
 
 
 _LEVELS = 64  # levels whose pair counts a query records
-_capacity: dict[tuple[int, int], int] = {}  # room for leaf pairs, per tree pair (a hint)
 
 
 def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -> ContactSet:
     """The pair-front search in one
     :func:`~engine.kernels.collision.pair_query.pair_query` call (flat arguments; the
     per-tree ones cached on ``tree.views``). The contacts are written into fresh buffers
-    with room for as many leaf pairs as this tree pair last needed (run again, with room,
-    when more are found)."""
-    side_a = tree_a.views.query_side_a(precision)
-    side_b = tree_b.views.query_side_b
+    with room for as many leaf pairs as either tree's queries last needed
+    (``views.leaf_pairs_hint``; run again, with room, when more are found)."""
+    views_a, views_b = tree_a.views, tree_b.views
+    side_a = views_a.query_side_a(precision)
+    side_b = views_b.query_side_b
     parameters = _parameters(kernel, precision, iterations)
     tiny = TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
     merge = min(side_a[-1], side_b[-2])
-    key = (id(tree_a), id(tree_b))
-    capacity = _capacity.get(key, 64)
+    capacity = max(views_a.leaf_pairs_hint, views_b.leaf_pairs_hint)
     while True:
         counters = np.zeros(tb.N_STATS + _LEVELS, np.int64)
         pairs, points = np.empty((capacity, 2), np.int64), np.empty((capacity, 3))
@@ -247,9 +246,7 @@ def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -
         if m >= 0:
             break
         capacity = 2 * found
-        if len(_capacity) > 4096:
-            _capacity.clear()
-        _capacity[key] = capacity
+        views_a.leaf_pairs_hint = views_b.leaf_pairs_hint = capacity
     counts = counters.tolist()
     stats = _made(
         ContactStats,

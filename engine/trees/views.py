@@ -165,6 +165,9 @@ class TreeViews:
         self._tree = tree
         self._query_sides: dict = {}
         self._prepared_rows: dict = {}
+        self.leaf_pairs_hint = 64
+        """Room for leaf pairs that ``find_contacts`` gives its buffers on this tree: the
+        most a query of it has needed so far (twice the count found), a hint only."""
         self.geometry = (
             TreeGeometry(tree.triangles, tree.face, tree.parent) if geometry is None else geometry
         )

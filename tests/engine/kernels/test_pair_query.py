@@ -122,12 +122,12 @@ def test_many_leaf_pairs_grow_the_room():
     first room (64): the query runs again with room and returns the flat search's pairs."""
     tree = build_tree(shapes.icosphere(3), 0.01)
     pa, pb = Pose.identity(), Pose([1.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
-    contacts._capacity.pop((id(tree), id(tree)), None)
+    assert tree.views.leaf_pairs_hint == 64  # a fresh tree
     got = find_contacts(tree, pa, tree, pb)
     flat = find_contacts(tree, pa, tree, pb, kernel="exact", hierarchy=False)
     assert len(flat.pairs) > 64
     np.testing.assert_array_equal(got.pairs, flat.pairs)
-    assert contacts._capacity[(id(tree), id(tree))] >= len(flat.pairs)
+    assert tree.views.leaf_pairs_hint >= len(flat.pairs)
     again = find_contacts(tree, pa, tree, pb)  # with the hint: one run
     np.testing.assert_array_equal(again.pairs, got.pairs)
     np.testing.assert_array_equal(again.points, got.points)
