@@ -34,9 +34,6 @@ def warmup() -> float:
         sa = TriangleSet(tri, precision)
         for kernel in KERNELS:
             triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
-            # raw arrays: float64 input, and input already in the search precision
-            for raw in (tri, tri.astype(precision)):
-                triangle_distances(raw, raw, kernel, precision, 0.1, threads=1)
             triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1

@@ -233,13 +233,14 @@ class TreeBank:
         self.dtype = np.dtype(precision).type
         sets = [t.views.geometry.node_set(precision, False) for t in trees]
         masters = [t.views.geometry.master for t in trees]
+        epsilon = np.concatenate([t.epsilon for t in trees])
         self.nodes = kb.NodeBank(
             coords=np.concatenate([s.coords_rm for s in sets]),
             frames=np.concatenate([s.frames_rm for s in sets]),
             master_coords=np.concatenate([m.coords_rm for m in masters]),
             master_frames=np.concatenate([m.frames_rm for m in masters]),
-            epsilon=np.concatenate([t.epsilon for t in trees]),
-            epsilon_query=np.concatenate([t.epsilon for t in trees]).astype(self.dtype),
+            epsilon=epsilon,
+            epsilon_query=epsilon.astype(self.dtype),
             face=np.concatenate([t.face for t in trees]),
             first_child=np.concatenate([t.first_child for t in trees]),
             child_count=np.concatenate([t.child_count for t in trees]),
