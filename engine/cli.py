@@ -38,14 +38,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mrdem", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("info", help="versions, CPU and kernel cache")
-    sub.add_parser("warmup", help="compile every kernel (or load it from the cache)")
+    warm = sub.add_parser("warmup", help="compile every kernel (or load it from the cache)")
+    warm.add_argument(
+        "--workers", type=int, default=None, help="processes compiling at once (default: 2 or 1)"
+    )
     args = parser.parse_args(argv)
     if args.command == "info":
         print(json.dumps(_info(), indent=2))
     elif args.command == "warmup":
+        from engine.errors import InvalidArgumentError
         from engine.warmup import warmup
 
-        print(f"kernels ready in {warmup():.2f} s")
+        try:
+            print(f"kernels ready in {warmup(args.workers):.2f} s")
+        except InvalidArgumentError as exc:
+            parser.error(str(exc))
     return 0
 
 

@@ -88,7 +88,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 def _warm(state) -> None:
     try:
-        state.warmup_seconds = engine.warmup()
+        state.warmup_seconds = engine.warmup(state.settings.warmup_workers)
         log.info("kernels ready in %.1f s", state.warmup_seconds)
         state.ready.set()
     except Exception as exc:  # reported by /readyz; the process stays up for diagnosis

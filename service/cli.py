@@ -87,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--port", type=int, help="overrides MRDEM_PORT")
     run.add_argument("--data-dir", help="overrides MRDEM_DATA_DIR")
     sub.add_parser("info", help="versions, CPU and kernel cache")
-    sub.add_parser("warmup", help="compile every kernel (or load it from the cache)")
+    warm = sub.add_parser("warmup", help="compile every kernel (or load it from the cache)")
+    warm.add_argument("--workers", type=int, help="processes compiling at once")
     sub.add_parser(
         "demo",
         help="particle on a plane through the client: CSV, PNG and VTK (see --help)",
@@ -105,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] in (["demo"], ["upload"]):  # client programs: service never imports clients
         return subprocess.call([sys.executable, "-m", f"clients.{argv[0]}", *argv[1:]])
     args = parser.parse_args(argv)
+    if args.command == "warmup" and args.workers is not None:
+        return engine_cli.main(["warmup", "--workers", str(args.workers)])
     if args.command in ("info", "warmup"):
         return engine_cli.main([args.command])
     if args.command == "bench":

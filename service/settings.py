@@ -41,6 +41,12 @@ class Settings(BaseSettings):
         description="worker threads of one batched engine call",
     )
     warmup: bool = Field(True, description="compile or load every kernel before /readyz")
+    warmup_workers: int | None = Field(
+        None,
+        ge=1,
+        le=2,
+        description="processes compiling kernels at start-up (default: 2, or 1 on one CPU)",
+    )
     tree_cache: int = Field(256, ge=1, description="surrogate trees kept in memory")
     build_wait: float = Field(
         5.0,

@@ -31,3 +31,9 @@ def test_unknown_command_is_a_usage_error():
     proc = run("frobnicate")
     assert proc.returncode == 2
     assert "invalid choice" in proc.stderr
+
+
+def test_warmup_refuses_a_worker_count_it_cannot_use():
+    proc = run("warmup", "--workers", "0")
+    assert proc.returncode == 2
+    assert "workers must be" in proc.stderr

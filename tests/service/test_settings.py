@@ -14,15 +14,22 @@ def test_settings_from_the_environment(monkeypatch, tmp_path):
     monkeypatch.setenv("MRDEM_DATA_DIR", str(tmp_path))
     monkeypatch.setenv("MRDEM_API_KEYS", " first-key-1 ,second-key-2,, ")
     monkeypatch.setenv("MRDEM_MAX_PAIRS", "17")
+    monkeypatch.setenv("MRDEM_WARMUP_WORKERS", "1")
     s = Settings()
     assert s.port == 9123 and s.data_dir == tmp_path and s.max_pairs == 17
+    assert s.warmup_workers == 1
     assert s.api_keys == ("first-key-1", "second-key-2")
     assert s.host == "127.0.0.1"
 
 
 @pytest.mark.parametrize(
     ("name", "value"),
-    [("MRDEM_API_KEYS", "short"), ("MRDEM_PORT", "70000"), ("MRDEM_MAX_STEPS", "0")],
+    [
+        ("MRDEM_API_KEYS", "short"),
+        ("MRDEM_PORT", "70000"),
+        ("MRDEM_MAX_STEPS", "0"),
+        ("MRDEM_WARMUP_WORKERS", "3"),
+    ],
 )
 def test_bad_settings_are_refused(monkeypatch, name, value):
     monkeypatch.setenv(name, value)
