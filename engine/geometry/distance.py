@@ -12,8 +12,12 @@ Three kernels (see :mod:`engine.kernels`): ``"exact"`` (the oracle),
 
 This module validates, converts, splits work across threads and assembles
 results; the kernels only see flat arrays. Raw triangle arrays are prepared (and their
-coordinates validated) by one kernel pass; the paired form prepares them block by block
-inside its kernel, so nothing of size ``n`` but the results is allocated.
+coordinates validated) by one kernel pass; the paired form prepares them inside its kernel,
+so nothing of size ``n`` but the results is allocated: with two raw arrays (writable C-contiguous
+float32 or float64 ones are used in place, no copy) and the exact kernel or one sweep, each
+pair is prepared inside the pair loop (``kernels/geometry/paired_fused.py``); otherwise
+block by block into buffers (``kernels/geometry/triangle_paired.py``). Both give the same
+bits.
 """
 
 from __future__ import annotations
