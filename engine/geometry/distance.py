@@ -12,8 +12,12 @@ Three kernels (see :mod:`engine.kernels`): ``"exact"`` (the oracle),
 
 This module validates, converts, splits work across threads and assembles
 results; the kernels only see flat arrays. Raw triangle arrays are prepared (and their
-coordinates validated) by one kernel pass; the paired form prepares them block by block
-inside its kernel, so nothing of size ``n`` but the results is allocated.
+coordinates validated) by one kernel pass; the paired form prepares them inside its kernel,
+so nothing of size ``n`` but the results is allocated: with two raw arrays (writable C-contiguous
+float32 or float64 ones are used in place, no copy) and the exact kernel or one sweep, each
+pair is prepared inside the pair loop (``kernels/geometry/paired_fused.py``); otherwise
+block by block into buffers (``kernels/geometry/triangle_paired.py``). Both give the same
+bits.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from engine.arguments import (
     kernel_constants,
 )
 from engine.errors import InvalidArgumentError
+from engine.kernels.geometry import paired_fused as pf
 from engine.kernels.geometry import triangle_batch as tb
 from engine.kernels.geometry import triangle_paired as tp
 from engine.workers import worker_pool
@@ -281,11 +286,20 @@ def triangle_distances(
     point_b = np.empty((n, 3), dtype)
     status = np.empty(n, np.int8)
     limit = _limit_and_tiny(dtype)[0]
-    out = (distance, lower, point_a, point_b, status)
+    if side_a[0] == side_b[0] == 0 and (params[0] == tb.EXACT or params[1] == 1):
+        # both raw: preparation fused into the pair loop (one sweep only, see paired_fused)
+        raw_a, raw_b = _common_dtype(side_a[1], side_b[1])
+        out = (distance, lower, point_a.reshape(-1), point_b.reshape(-1), status)
+        kernel_fn = pf.paired_raw_kernel
+        args = (raw_a.reshape(-1), raw_b.reshape(-1))
+    else:
+        out = (distance, lower, point_a, point_b, status)
+        kernel_fn = tp.paired_kernel
+        args = (side_a, side_b)
 
     def run(start: int, stop: int) -> tuple:
         stats = np.zeros(tb.N_STATS, np.int64)
-        bad = tp.paired_kernel(side_a, side_b, eps, start, stop, params, limit, *out, stats)
+        bad = kernel_fn(*args, eps, start, stop, params, limit, *out, stats)
         return bad, stats
 
     parts = _map_chunks(run, n, n, threads)
@@ -446,6 +460,14 @@ def _raw_triangles(x, name: str, dtype) -> np.ndarray:
             return x
         return np.array(x, order="C")
     return check_triangles(x, name, dtype)
+
+
+def _common_dtype(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Raw triangle arrays ``x, y (n, 3, 3)`` in one dtype (float32 widened to float64, which
+    is exact), so that the fused kernel has one specialisation per dtype."""
+    if x.dtype == y.dtype:
+        return x, y
+    return x.astype(np.float64), y.astype(np.float64)
 
 
 def _row_major(columns: np.ndarray, threads: int | None) -> np.ndarray:
