@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.boxes import BOX_COLUMNS, box_apart, place_box
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.traversal import traverse
 from engine.kernels.geometry.triangle_batch import N_STATS
@@ -38,6 +39,7 @@ def pair_query(
     normals_a,
     extent_a,
     leaf_epsilon_a,
+    boxes_a,
     master_coords,
     master_frames,
     epsilon_b,
@@ -48,6 +50,7 @@ def pair_query(
     extent_b,
     leaf_epsilon_b,
     n_faces_b,
+    boxes_b,
     position_a,
     orientation_a,
     position_b,
@@ -70,11 +73,15 @@ def pair_query(
 ):
     """Contacts of body A (its nodes ``coords_a … spheres_a`` as
     :func:`~engine.kernels.collision.traversal.query_kernel`'s ``body_a``, face normals
-    ``normals_a (F, 3)`` float64, largest body-frame coordinate ``extent_a``, leaf ε) at
-    ``position_a (3,)``, ``orientation_a (4,)`` (unit quaternion) and body B
-    (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b`` faces) at ``position_b``,
-    ``orientation_b``. The arguments come in four groups: A's, B's (each fixed per tree,
-    so the host keeps them as one tuple per tree), the poses, and the parameters.
+    ``normals_a (F, 3)`` float64, largest body-frame coordinate ``extent_a``, leaf ε, node
+    boxes ``boxes_a (N, 15)`` float64 as :mod:`~engine.kernels.collision.boxes` reads them,
+    or ``(0, 15)`` for none) at ``position_a (3,)``, ``orientation_a (4,)`` (unit
+    quaternion) and body B (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b``
+    faces; ``boxes_b``) at ``position_b``, ``orientation_b``. Node pairs are pruned by
+    their bounding spheres, then by their boxes
+    (:func:`~engine.kernels.collision.traversal.traverse`). The arguments come in four
+    groups: A's, B's (each fixed per tree, so the host keeps them as one tuple per tree),
+    the poses, and the parameters.
 
     ``extent_*``, ``ulp``: the query margin's inputs
     (:func:`~engine.kernels.collision.batch.query_margin`); ``coarse_mode``, ``leaf_mode``
@@ -109,6 +116,8 @@ def pair_query(
         first_b,
         count_b,
         spheres_b,
+        boxes_a,
+        boxes_b,
         rotation,
         shift,
         margin,
@@ -135,3 +144,18 @@ def pair_query(
         (out_pairs, out_points, out_normals, out_overlaps),
     )
     return n, np.int64(m), np.int64(k), depth, unfoldings
+
+
+@njit(**JIT)
+def roots_apart(boxes_a, boxes_b, position_a, orientation_a, position_b, orientation_b, margin):
+    """:func:`~engine.kernels.collision.boxes.box_apart` of the two root boxes (row 0 of
+    ``boxes_a (Na, 15)``, ``boxes_b (Nb, 15)`` float64, body frames) for bodies at
+    ``position_* (3,)``, ``orientation_* (4,)`` (unit quaternions), with B's root placed in
+    A's frame as :func:`pair_query` places it (the same
+    :func:`~engine.kernels.collision.batch.relative_pose`). ``margin`` float64; returns
+    bool."""
+    _, rotation, shift = relative_pose(position_a, orientation_a, position_b, orientation_b)
+    placed = np.empty((1, BOX_COLUMNS))
+    done = np.zeros(1, np.bool_)
+    place_box(boxes_b, 0, rotation, shift, placed, done)
+    return box_apart(boxes_a, 0, placed, 0, margin)
