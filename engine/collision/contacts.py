@@ -7,8 +7,8 @@ Multiresolution search (``hierarchy=True``, ``traversal="pairs"``) keeps a **fro
 node pairs**, starting at the two roots, inside one Numba call with flat arguments
 (:func:`~engine.kernels.collision.pair_query.pair_query`: relative pose, margin,
 traversal and merged contacts; the per-tree arguments are cached on ``tree.views``), a
-level per round — unless the two bodies are so far apart that their root spheres or root
-boxes cannot meet (:func:`far_apart`, on the host):
+level per round — unless the bounds of the roots and of their children show the bodies
+apart (:func:`far_apart`, on the host; the kernel makes the same test first):
 
 * a node pair whose bounding spheres (:attr:`~engine.trees.views.TreeViews.spheres`) are
   apart, or else whose oriented bounding boxes
@@ -224,7 +224,7 @@ def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -
     side_b = views_b.query_side_b
     parameters = _parameters(kernel, precision, iterations)
     tiny = TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
-    merge = min(side_a[-2], side_b[-3])  # the smaller leaf ε
+    merge = min(tree_a.leaf_epsilon, tree_b.leaf_epsilon)
     capacity = max(views_a.leaf_pairs_hint, views_b.leaf_pairs_hint)
     while True:
         counters = np.zeros(tb.N_STATS + _LEVELS, np.int64)
@@ -303,21 +303,19 @@ _FAR_SLACK = 2.0 * MARGIN_ULPS * ULP[np.float32] * 2.0  # twice the float32 quer
 
 
 def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b: Pose) -> bool:
-    """True when the two bodies' root bounding spheres, or root boxes, are apart by more
-    than twice the largest query margin: first whatever the rotations,
-    ``|p_b − p_a| > R_a + R_b + slack``, ``R`` each tree's
-    :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of a body lies
-    farther than ``R`` from its position) and ``slack`` twice the float32
-    :func:`~engine.kernels.collision.batch.query_margin` at this distance; else, when a
-    root sphere is off its body's origin, with both centres placed in the world frame
-    (``|R_a c_a + p_a − R_b c_b − p_b| > r_a + r_b + slack``); else when the root boxes
-    (:attr:`~engine.trees.views.TreeViews.boxes` row 0) have a separating axis with a gap
-    above ``slack`` (:func:`~engine.kernels.collision.pair_query.roots_apart`, B's box placed
-    by the traversal's own arithmetic). The multiresolution search then prunes the root
-    pair too (its sphere and box tests have a smaller margin, and the distances differ by
-    rounding only, far below the slack), so :func:`find_contacts` returns
-    :data:`FAR_APART` without running the search. Host floats for the spheres (about a
-    microsecond), one small kernel call for the boxes (a few)."""
+    """True when the two bodies' roots are apart by more than twice the largest query
+    margin: first whatever the rotations, ``|p_b − p_a| > R_a + R_b + slack``, ``R`` each
+    tree's :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of a body
+    lies farther than ``R`` from its position) and ``slack`` twice the float32
+    :func:`~engine.kernels.collision.batch.query_margin` at this distance (host floats,
+    about a microsecond); else by the roots' placed bounding spheres or boxes, or those of
+    every pair of the roots' children
+    (:attr:`~engine.trees.views.TreeViews.root_rows`,
+    :func:`~engine.kernels.collision.pair_query.roots_apart`: one small kernel call, B
+    placed by the search's own arithmetic). The multiresolution search makes the same test
+    with its smaller margin first (the distances differ by rounding only, far below the
+    slack), so it prunes the root pair too: :func:`find_contacts` returns
+    :data:`FAR_APART` without running it."""
     ax, ay, az = pose_a.position.tolist()
     bx, by, bz = pose_b.position.tolist()
     dx, dy, dz = bx - ax, by - ay, bz - az
@@ -326,23 +324,9 @@ def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b
     slack = _FAR_SLACK * (SQRT3 * (va.geometry.extent + vb.geometry.extent) + distance)
     if distance > va.root_reach + vb.root_reach + slack:
         return True
-    (ca, ra), (cb, rb) = va.root_sphere, vb.root_sphere
-    if va.root_reach - ra + vb.root_reach - rb > slack:
-        # root spheres off their bodies' origins: their centres in the world frame
-        g = [bx - ax, by - ay, bz - az]
-        for row, (ua, ub) in enumerate(
-            zip(pose_a.rotation.tolist(), pose_b.rotation.tolist(), strict=True)
-        ):
-            g[row] += (ub[0] * cb[0] + ub[1] * cb[1] + ub[2] * cb[2]) - (
-                ua[0] * ca[0] + ua[1] * ca[1] + ua[2] * ca[2]
-            )
-        reach = ra + rb + slack
-        gx, gy, gz = g
-        if gx * gx + gy * gy + gz * gz > reach * reach:
-            return True
     return roots_apart(
-        va.boxes,
-        vb.boxes,
+        va.root_rows,
+        vb.root_rows,
         pose_a.position,
         pose_a.orientation,
         pose_b.position,

@@ -22,6 +22,7 @@ from numba import njit
 from engine.kernels.jit import JIT
 
 BOX_COLUMNS = 15  # centre (3), axes (3 × 3, one per row), half-extents (3)
+ROW_COLUMNS = 19  # a box, then a sphere: centre (3), radius
 
 
 @njit(**JIT)
@@ -114,6 +115,54 @@ def box_apart(boxes_a, i, placed_b, j, margin):
     if abs(t1 * r01 - t0 * r11) > ha0 * e11 + ha1 * e01 + hb0 * e22 + hb2 * e20 + margin:
         return True
     return abs(t1 * r02 - t0 * r12) > ha0 * e12 + ha1 * e02 + hb0 * e21 + hb1 * e20 + margin
+
+
+@njit(**JIT)
+def bounds_apart(rows_a, rows_b, rotation, shift, margin):
+    """True when no leaf pair of two bodies can be in contact, judged by the bounds of their
+    roots and the roots' children: ``rows_* (k, 19)`` float64, body frames, row 0 the root
+    and rows 1 … its children (none for a root leaf), each a box (columns 0–14, as in the
+    module) then a sphere (centre, radius); B's frame maps to A's by ``x ↦ rotation x +
+    shift``. Apart when the roots' spheres or boxes are apart by more than ``margin``, or
+    else when every pair of their children is (a root without children standing for itself:
+    every leaf pair lies under one such pair)."""
+    kb = rows_b.shape[0]
+    placed = np.empty((kb, ROW_COLUMNS))
+    done = np.zeros(kb, np.bool_)
+    for j in range(kb):
+        place_box(rows_b, j, rotation, shift, placed, done)
+        for r in range(3):
+            placed[j, 15 + r] = (
+                rotation[r, 0] * rows_b[j, 15]
+                + rotation[r, 1] * rows_b[j, 16]
+                + rotation[r, 2] * rows_b[j, 17]
+                + shift[r]
+            )
+        placed[j, 18] = rows_b[j, 18]
+    if _row_pair_apart(rows_a, 0, placed, 0, margin):
+        return True
+    a0 = 1 if rows_a.shape[0] > 1 else 0
+    b0 = 1 if kb > 1 else 0
+    if a0 == 0 and b0 == 0:
+        return False
+    for i in range(a0, rows_a.shape[0]):
+        for j in range(b0, kb):
+            if not _row_pair_apart(rows_a, i, placed, j, margin):
+                return False
+    return True
+
+
+@njit(**JIT)
+def _row_pair_apart(rows_a, i, placed, j, margin):
+    """Rows ``i`` of ``rows_a`` and ``j`` of ``placed`` (:func:`bounds_apart`'s layout, A's
+    frame) apart by more than ``margin``: their spheres, else their boxes."""
+    dx = rows_a[i, 15] - placed[j, 15]
+    dy = rows_a[i, 16] - placed[j, 16]
+    dz = rows_a[i, 17] - placed[j, 17]
+    reach = rows_a[i, 18] + placed[j, 18] + margin
+    if dx * dx + dy * dy + dz * dz > reach * reach:
+        return True
+    return box_apart(rows_a, i, placed, j, margin)
 
 
 @njit(**JIT)
