@@ -7,8 +7,8 @@ Multiresolution search (``hierarchy=True``, ``traversal="pairs"``) keeps a **fro
 node pairs**, starting at the two roots, inside one Numba call with flat arguments
 (:func:`~engine.kernels.collision.pair_query.pair_query`: relative pose, margin,
 traversal and merged contacts; the per-tree arguments are cached on ``tree.views``), a
-level per round — unless the bounds of the roots and of their children show the bodies
-apart (:func:`far_apart`, on the host; the kernel makes the same test first):
+level per round — unless the node bounds alone show the bodies apart (:func:`far_apart`,
+on the host; the kernel makes the same test first):
 
 * a node pair whose bounding spheres (:attr:`~engine.trees.views.TreeViews.spheres`) are
   apart, or else whose oriented bounding boxes
@@ -83,10 +83,10 @@ class ContactStats:
     unfoldings : node pairs unfolded
     raw_contacts, merged_contacts : contact points before and after merging
     sphere_pruned : node pairs pruned by their bounding spheres or boxes, before any
-        triangle comparison (not counted as comparisons): the root pair if its spheres or
-        boxes are apart
-        (then 1, and nothing else is counted; also when :func:`far_apart` settles the
-        query on the host), else every child pair of an unfolded pair that does not
+        triangle comparison (not counted as comparisons): the root pair if the node
+        bounds alone show the bodies apart (then 1, and nothing else is counted; also
+        when :func:`far_apart` settles the query on the host), else every child pair of
+        an unfolded pair that does not
         enter the next level (each side's children are tested against the other side's
         node first, then the survivors against each other)
     """
@@ -303,19 +303,20 @@ _FAR_SLACK = 2.0 * MARGIN_ULPS * ULP[np.float32] * 2.0  # twice the float32 quer
 
 
 def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b: Pose) -> bool:
-    """True when the two bodies' roots are apart by more than twice the largest query
-    margin: first whatever the rotations, ``|p_b − p_a| > R_a + R_b + slack``, ``R`` each
-    tree's :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of a body
-    lies farther than ``R`` from its position) and ``slack`` twice the float32
+    """True when the two bodies are apart by more than twice the largest query margin:
+    first whatever the rotations, ``|p_b − p_a| > R_a + R_b + slack``, ``R`` each tree's
+    :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of a body lies
+    farther than ``R`` from its position) and ``slack`` twice the float32
     :func:`~engine.kernels.collision.batch.query_margin` at this distance (host floats,
-    about a microsecond); else by the roots' placed bounding spheres or boxes, or those of
-    every pair of the roots' children
-    (:attr:`~engine.trees.views.TreeViews.root_rows`,
+    about a microsecond); else by the node bounds alone: a short depth-first search from
+    the root pair that drops node pairs whose spheres or boxes are apart by more than the
+    slack (:attr:`~engine.trees.views.TreeViews.bounds_table`,
     :func:`~engine.kernels.collision.pair_query.roots_apart`: one small kernel call, B
-    placed by the search's own arithmetic). The multiresolution search makes the same test
-    with its smaller margin first (the distances differ by rounding only, far below the
-    slack), so it prunes the root pair too: :func:`find_contacts` returns
-    :data:`FAR_APART` without running it."""
+    placed by the search's own arithmetic, at most
+    :data:`~engine.kernels.collision.boxes.SEARCH_BUDGET` node pairs). The
+    multiresolution search makes the same test with its smaller margin first (its
+    outcome is monotone in the margin), so it prunes the root pair too:
+    :func:`find_contacts` returns :data:`FAR_APART` without running it."""
     ax, ay, az = pose_a.position.tolist()
     bx, by, bz = pose_b.position.tolist()
     dx, dy, dz = bx - ax, by - ay, bz - az
@@ -325,8 +326,8 @@ def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b
     if distance > va.root_reach + vb.root_reach + slack:
         return True
     return roots_apart(
-        va.root_rows,
-        vb.root_rows,
+        va.bounds_table,
+        vb.bounds_table,
         pose_a.position,
         pose_a.orientation,
         pose_b.position,

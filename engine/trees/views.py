@@ -254,23 +254,20 @@ class TreeViews:
         return out  # writable, as the kernels take it (see TreeStructure); never written
 
     @cached_property
-    def root_rows(self) -> np.ndarray:
-        """(k, 19) float64 bounds of the root (row 0) and of its children (rows 1 …; none
-        when the root is a leaf), body frame: each node's :attr:`boxes` row, then its
-        :attr:`spheres` row; what :func:`~engine.kernels.collision.boxes.bounds_apart`
-        reads (the search's and the early-out's root test)."""
+    def bounds_table(self) -> np.ndarray:
+        """(N, 21) float64 bounds of every node, body frame, as
+        :func:`~engine.kernels.collision.boxes.bounds_apart` reads them (the search's and
+        the early-out's bounds-only test): its :attr:`boxes` row, its :attr:`spheres` row,
+        first child and child count (0 for a leaf)."""
         tree = self._tree
-        nodes = [0]
-        if tree.face[0] < 0:
-            first = int(tree.first_child[0])
-            nodes += range(first, first + int(tree.child_count[0]))
-        return np.hstack([self.boxes[nodes], self.spheres[nodes]])
+        count = np.where(tree.face >= 0, 0, tree.child_count)
+        return np.hstack([self.boxes, self.spheres, tree.first_child[:, None], count[:, None]])
 
     def query_side_a(self, precision: str) -> tuple:
         """The A-side arguments of :func:`~engine.kernels.collision.pair_query.pair_query`
         (computed once per precision): ``(coords (N, 9), frames (N, 14)`` in
         ``precision``, ``epsilon, face, first_child, child_count (N,), spheres (N, 4),
-        face normals (F, 3) float64, extent, leaf ε, boxes (N, 15), root rows (k, 19))``."""
+        face normals (F, 3) float64, extent, leaf ε, boxes (N, 15), bounds table (N, 21))``."""
         side = self._query_sides.get(precision)
         if side is None:
             nodes = self.geometry.node_set(precision, False)
@@ -283,7 +280,7 @@ class TreeViews:
                 self.geometry.extent,
                 self._tree.leaf_epsilon,
                 self.boxes,
-                self.root_rows,
+                self.bounds_table,
             )
             self._query_sides[precision] = side
         return side
@@ -293,7 +290,7 @@ class TreeViews:
         """The B-side arguments of :func:`~engine.kernels.collision.pair_query.pair_query`:
         ``(coords (N, 9), frames (N, 14)`` float64 (the master set, body frame),
         ``epsilon, face, first_child, child_count (N,), spheres (N, 4), extent, leaf ε,
-        number of faces, boxes (N, 15), root rows (k, 19))``."""
+        number of faces, boxes (N, 15), bounds table (N, 21))``."""
         master = self.geometry.master
         return (
             master.coords_rm,
@@ -304,7 +301,7 @@ class TreeViews:
             self._tree.leaf_epsilon,
             len(self.geometry.face_nodes),
             self.boxes,
-            self.root_rows,
+            self.bounds_table,
         )
 
     @cached_property

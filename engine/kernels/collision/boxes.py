@@ -22,7 +22,8 @@ from numba import njit
 from engine.kernels.jit import JIT
 
 BOX_COLUMNS = 15  # centre (3), axes (3 × 3, one per row), half-extents (3)
-ROW_COLUMNS = 19  # a box, then a sphere: centre (3), radius
+TABLE_COLUMNS = 21  # a box (15), a sphere: centre (3), radius; first child, child count
+SEARCH_BUDGET = 256  # node pairs a bounds-only search tests before it gives up
 
 
 @njit(**JIT)
@@ -118,44 +119,86 @@ def box_apart(boxes_a, i, placed_b, j, margin):
 
 
 @njit(**JIT)
-def bounds_apart(rows_a, rows_b, rotation, shift, margin):
-    """True when no leaf pair of two bodies can be in contact, judged by the bounds of their
-    roots and the roots' children: ``rows_* (k, 19)`` float64, body frames, row 0 the root
-    and rows 1 … its children (none for a root leaf), each a box (columns 0–14, as in the
-    module) then a sphere (centre, radius); B's frame maps to A's by ``x ↦ rotation x +
-    shift``. Apart when the roots' spheres or boxes are apart by more than ``margin``, or
-    else when every pair of their children is (a root without children standing for itself:
-    every leaf pair lies under one such pair)."""
-    kb = rows_b.shape[0]
-    placed = np.empty((kb, ROW_COLUMNS))
-    done = np.zeros(kb, np.bool_)
-    for j in range(kb):
-        place_box(rows_b, j, rotation, shift, placed, done)
-        for r in range(3):
-            placed[j, 15 + r] = (
-                rotation[r, 0] * rows_b[j, 15]
-                + rotation[r, 1] * rows_b[j, 16]
-                + rotation[r, 2] * rows_b[j, 17]
-                + shift[r]
-            )
-        placed[j, 18] = rows_b[j, 18]
-    if _row_pair_apart(rows_a, 0, placed, 0, margin):
+def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
+    """True when the node bounds alone show that no leaf pair of two bodies is within
+    ``margin`` (float64) of contact: ``table_* (N, 21)`` float64 rows per node, body frames,
+    each a box (columns 0–14, as in the module), a sphere (15–17 centre, 18 radius), the
+    first child (19) and the child count (20, 0 for a leaf); B's frame maps to A's by ``x ↦
+    rotation x + shift``. A depth-first search from the root pair drops every pair whose
+    spheres or boxes are apart by more than ``margin`` and replaces every other by the
+    pairs of its larger node's children (larger sphere; a leaf stands for itself). False as
+    soon as a pair of two leaves remains or more than ``budget`` pairs were tested. The
+    outcome is monotone in ``margin``: with a smaller one every pair dropped is dropped
+    too, so a search that ends True within the budget ends True with any smaller margin."""
+    stack = np.empty((budget + 1, 2), np.int64)
+    placed = np.empty((1, 19))
+    _place(table_b, 0, rotation, shift, placed)
+    if _row_pair_apart(table_a, 0, placed, 0, margin):
         return True
-    a0 = 1 if rows_a.shape[0] > 1 else 0
-    b0 = 1 if kb > 1 else 0
-    if a0 == 0 and b0 == 0:
-        return False
-    for i in range(a0, rows_a.shape[0]):
-        for j in range(b0, kb):
-            if not _row_pair_apart(rows_a, i, placed, j, margin):
-                return False
+    stack[0, 0], stack[0, 1] = 0, 0
+    top, tests = 1, 1
+    while top > 0:
+        top -= 1
+        i, j = stack[top, 0], stack[top, 1]
+        count_a, count_b = np.int64(table_a[i, 20]), np.int64(table_b[j, 20])
+        if count_a == 0 and count_b == 0:
+            return False  # two leaves that may touch
+        if count_a > 0 and (count_b == 0 or table_a[i, 18] >= table_b[j, 18]):
+            _place(table_b, j, rotation, shift, placed)
+            first = np.int64(table_a[i, 19])
+            for c in range(first, first + count_a):
+                tests += 1
+                if tests > budget:
+                    return False
+                if not _row_pair_apart(table_a, c, placed, 0, margin):
+                    stack[top, 0], stack[top, 1] = c, j
+                    top += 1
+        else:
+            first = np.int64(table_b[j, 19])
+            for c in range(first, first + count_b):
+                tests += 1
+                if tests > budget:
+                    return False
+                _place(table_b, c, rotation, shift, placed)
+                if not _row_pair_apart(table_a, i, placed, 0, margin):
+                    stack[top, 0], stack[top, 1] = i, c
+                    top += 1
     return True
+
+
+@njit(**JIT)
+def _place(table_b, j, rotation, shift, out):
+    """B's node ``j`` (its box and sphere, columns 0–18 of ``table_b``) moved into A's frame,
+    into ``out[0]`` (``(1, 19)`` float64)."""
+    for r in range(3):
+        out[0, r] = (
+            rotation[r, 0] * table_b[j, 0]
+            + rotation[r, 1] * table_b[j, 1]
+            + rotation[r, 2] * table_b[j, 2]
+            + shift[r]
+        )
+        out[0, 15 + r] = (
+            rotation[r, 0] * table_b[j, 15]
+            + rotation[r, 1] * table_b[j, 16]
+            + rotation[r, 2] * table_b[j, 17]
+            + shift[r]
+        )
+    for c in range(3, 12, 3):
+        for r in range(3):
+            out[0, c + r] = (
+                rotation[r, 0] * table_b[j, c]
+                + rotation[r, 1] * table_b[j, c + 1]
+                + rotation[r, 2] * table_b[j, c + 2]
+            )
+    for c in (12, 13, 14, 18):
+        out[0, c] = table_b[j, c]
 
 
 @njit(**JIT)
 def _row_pair_apart(rows_a, i, placed, j, margin):
     """Rows ``i`` of ``rows_a`` and ``j`` of ``placed`` (:func:`bounds_apart`'s layout, A's
-    frame) apart by more than ``margin``: their spheres, else their boxes."""
+    frame; box, then sphere) apart by more than ``margin``: their spheres, else their
+    boxes."""
     dx = rows_a[i, 15] - placed[j, 15]
     dy = rows_a[i, 16] - placed[j, 16]
     dz = rows_a[i, 17] - placed[j, 17]

@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.batch import query_margin, relative_pose
-from engine.kernels.collision.boxes import bounds_apart
+from engine.kernels.collision.boxes import SEARCH_BUDGET, bounds_apart
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.traversal import traverse
 from engine.kernels.geometry.triangle_batch import N_STATS, STAT_SPHERES
@@ -40,7 +40,7 @@ def pair_query(
     extent_a,
     leaf_epsilon_a,
     boxes_a,
-    rows_a,
+    table_a,
     master_coords,
     master_frames,
     epsilon_b,
@@ -52,7 +52,7 @@ def pair_query(
     leaf_epsilon_b,
     n_faces_b,
     boxes_b,
-    rows_b,
+    table_b,
     position_a,
     orientation_a,
     position_b,
@@ -77,14 +77,15 @@ def pair_query(
     :func:`~engine.kernels.collision.traversal.query_kernel`'s ``body_a``, face normals
     ``normals_a (F, 3)`` float64, largest body-frame coordinate ``extent_a``, leaf ε, node
     boxes ``boxes_a (N, 15)`` float64 as :mod:`~engine.kernels.collision.boxes` reads them,
-    or ``(0, 15)`` for none, and the bounds of its root and the root's children ``rows_a
-    (k, 19)`` as :func:`~engine.kernels.collision.boxes.bounds_apart` reads them, or ``(0,
-    19)``) at ``position_a (3,)``, ``orientation_a (4,)`` (unit quaternion) and body B
+    or ``(0, 15)`` for none, and its node bounds ``table_a (N, 21)`` as
+    :func:`~engine.kernels.collision.boxes.bounds_apart` reads them, or ``(0, 21)``) at
+    ``position_a (3,)``, ``orientation_a (4,)`` (unit quaternion) and body B
     (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b`` faces; ``boxes_b``,
-    ``rows_b``) at ``position_b``, ``orientation_b``. When the roots' bounds show the
-    bodies apart (``bounds_apart``, with the query margin) the root pair counts as pruned
-    and nothing else runs; else node pairs are pruned by their bounding spheres, then by
-    their boxes (:func:`~engine.kernels.collision.traversal.traverse`). The arguments come in four
+    ``table_b``) at ``position_b``, ``orientation_b``. When the node bounds alone show the
+    bodies apart (``bounds_apart`` with the query margin, at most ``SEARCH_BUDGET`` node
+    pairs tested) the root pair counts as pruned and nothing else runs; else node pairs
+    are pruned by their bounding spheres, then by their boxes
+    (:func:`~engine.kernels.collision.traversal.traverse`). The arguments come in four
     groups: A's, B's (each fixed per tree, so the host keeps them as one tuple per tree),
     the poses, and the parameters.
 
@@ -107,9 +108,9 @@ def pair_query(
     stats = counters[:N_STATS]
     levels = counters[N_STATS:]
     if (
-        rows_a.shape[0] > 0
-        and rows_b.shape[0] > 0
-        and bounds_apart(rows_a, rows_b, rotation, shift, margin)
+        table_a.shape[0] > 0
+        and table_b.shape[0] > 0
+        and bounds_apart(table_a, table_b, rotation, shift, margin, SEARCH_BUDGET)
     ):  # the root pair pruned, as the traversal counts it
         stats[STAT_SPHERES] += 1
         none = np.int64(0)
@@ -160,12 +161,13 @@ def pair_query(
 
 
 @njit(**JIT)
-def roots_apart(rows_a, rows_b, position_a, orientation_a, position_b, orientation_b, margin):
-    """:func:`~engine.kernels.collision.boxes.bounds_apart` of two bodies' root rows
-    ``rows_* (k, 19)`` float64 (body frames) at ``position_* (3,)``, ``orientation_* (4,)``
-    (unit quaternions), B placed in A's frame as :func:`pair_query` places it (the same
+def roots_apart(table_a, table_b, position_a, orientation_a, position_b, orientation_b, margin):
+    """:func:`~engine.kernels.collision.boxes.bounds_apart` (budget ``SEARCH_BUDGET``) of
+    two bodies' node bounds ``table_* (N, 21)`` float64 (body frames) at ``position_*
+    (3,)``, ``orientation_* (4,)`` (unit quaternions), B placed in A's frame as
+    :func:`pair_query` places it (the same
     :func:`~engine.kernels.collision.batch.relative_pose`); ``margin`` float64. Returns
     bool: the host's early-out (with a larger margin than the query's, so that
     :func:`pair_query` then prunes the root pair too)."""
     _, rotation, shift = relative_pose(position_a, orientation_a, position_b, orientation_b)
-    return bounds_apart(rows_a, rows_b, rotation, shift, margin)
+    return bounds_apart(table_a, table_b, rotation, shift, margin, SEARCH_BUDGET)

@@ -206,15 +206,17 @@ def test_box_early_out_never_settles_what_the_kernel_keeps(trees):
 
 def test_roots_children_settle_a_chain_link_held_apart():
     """Two linked tori 0.3 apart (a chain link pulled taut): their root spheres and root
-    boxes overlap, but every pair of the roots' children is apart, so the early-out settles
-    the query, the search prunes the root pair the same way, and the flat search finds no
-    contact; 0.01 apart the early-out does not fire and the pairs are the flat search's."""
+    boxes overlap, but the bounds-only search below the roots finds every node pair apart,
+    so the early-out settles the query, the search prunes the root pair the same way, and
+    the flat search finds no contact; 0.01 apart the early-out does not fire and the pairs
+    are the flat search's."""
     torus = build_tree(shapes.torus(1.0, 0.3, 32, 16), epsilon=0.01, seed=0)
     quarter = [np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]  # B's ring through A's hole
     pa = Pose.identity()
     for gap, apart in ((0.3, True), (0.01, False)):
         pb = Pose([0.6 + gap, 0.0, 0.0], quarter)
-        root = torus.views.root_rows[:1]  # the roots' own bounds only
+        root = torus.views.bounds_table[:1].copy()  # the roots' own bounds only
+        root[0, 20] = 0.0
         args = (pa.position, pa.orientation, pb.position, pb.orientation, 1e-6)
         assert not _spheres_settle(torus, pa, torus, pb) and not roots_apart(root, root, *args)
         assert contacts.far_apart(torus, pa, torus, pb) == apart

@@ -19,7 +19,7 @@ from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry import triangle_batch as tb
 
 LEVELS = 64
-NO_BOXES = np.empty((0, 15)), np.empty((0, 19))  # no node boxes, no root rows
+NO_BOXES = np.empty((0, 15)), np.empty((0, 21))  # no node boxes, no bounds table
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +44,7 @@ def _poses(seed: int, count: int):
 
 def _run(ta, pa, tb_, pb, precision, capacity, boxes=True):
     """``pair_query`` on the trees' cached sides; ``boxes=False`` passes no node boxes and
-    no root rows (spheres only, as ``query_kernel`` prunes)."""
+    no bounds table (spheres only, as ``query_kernel`` prunes)."""
     side_a, side_b = ta.views.query_side_a(precision), tb_.views.query_side_b
     if not boxes:
         side_a, side_b = (*side_a[:-2], *NO_BOXES), (*side_b[:-2], *NO_BOXES)
