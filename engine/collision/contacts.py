@@ -7,11 +7,13 @@ Multiresolution search (``hierarchy=True``, ``traversal="pairs"``) keeps a **fro
 node pairs**, starting at the two roots, inside one Numba call with flat arguments
 (:func:`~engine.kernels.collision.pair_query.pair_query`: relative pose, margin,
 traversal and merged contacts; the per-tree arguments are cached on ``tree.views``), a
-level per round — unless the two bodies are so far apart that their root spheres cannot
-meet whatever the rotations (:func:`far_apart`, host floats only):
+level per round — unless the node bounds alone show the bodies apart (:func:`far_apart`,
+on the host; the kernel makes the same test first):
 
 * a node pair whose bounding spheres (:attr:`~engine.trees.views.TreeViews.spheres`) are
-  apart is pruned before any triangle comparison;
+  apart, or else whose oriented bounding boxes
+  (:attr:`~engine.trees.views.TreeViews.boxes`) are, is pruned before any triangle
+  comparison;
 * a pair with a surrogate is evaluated with the iterative kernel (exact if
   ``kernel="exact"``); "no contact" prunes both subtrees, "contact" or "not converged"
   replaces it by its child pairs — every surrogate of the pair unfolds, a leaf stays
@@ -63,7 +65,7 @@ from engine.geometry.distance import (
 from engine.geometry.pose import Pose
 from engine.kernels.collision.batch import MARGIN_ULPS, SQRT3, query_margin, relative_pose
 from engine.kernels.collision.contact_merge import contact_kernel
-from engine.kernels.collision.pair_query import pair_query
+from engine.kernels.collision.pair_query import pair_query, roots_apart
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.geometry import triangle_batch as tb
 from engine.trees.tree import SurrogateTree
@@ -80,10 +82,11 @@ class ContactStats:
     iterative, fallbacks : iterative evaluations and exact fallbacks
     unfoldings : node pairs unfolded
     raw_contacts, merged_contacts : contact points before and after merging
-    sphere_pruned : node pairs pruned by their bounding spheres, before any triangle
-        comparison (not counted as comparisons): the root pair if its spheres are apart
-        (then 1, and nothing else is counted; also when :func:`far_apart` settles the
-        query on the host), else every child pair of an unfolded pair that does not
+    sphere_pruned : node pairs pruned by their bounding spheres or boxes, before any
+        triangle comparison (not counted as comparisons): the root pair if the node
+        bounds alone show the bodies apart (then 1, and nothing else is counted; also
+        when :func:`far_apart` settles the query on the host), else every child pair of
+        an unfolded pair that does not
         enter the next level (each side's children are tested against the other side's
         node first, then the survivors against each other)
     """
@@ -221,7 +224,7 @@ def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -
     side_b = views_b.query_side_b
     parameters = _parameters(kernel, precision, iterations)
     tiny = TINY * max(tree_a.bounding_radius, tree_b.bounding_radius)
-    merge = min(side_a[-1], side_b[-2])
+    merge = min(tree_a.leaf_epsilon, tree_b.leaf_epsilon)
     capacity = max(views_a.leaf_pairs_hint, views_b.leaf_pairs_hint)
     while True:
         counters = np.zeros(tb.N_STATS + _LEVELS, np.int64)
@@ -292,24 +295,28 @@ FAR_APART = ContactSet(
     ContactStats(sphere_pruned=1),
 )
 """The result of every query that :func:`far_apart` settles: no contact, the root pair
-pruned by its bounding spheres (the multiresolution search's own counters for that case).
+pruned by its bounding spheres or boxes (the multiresolution search's own counters for
+that case).
 One shared object, its arrays read-only."""
 
 _FAR_SLACK = 2.0 * MARGIN_ULPS * ULP[np.float32] * 2.0  # twice the float32 query margin
 
 
 def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b: Pose) -> bool:
-    """True when the two bodies' root bounding spheres are apart by more than twice the
-    largest query margin: first whatever the rotations, ``|p_b − p_a| > R_a + R_b + slack``,
-    ``R`` each tree's :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of
-    a body lies farther than ``R`` from its position) and ``slack`` twice the float32
-    :func:`~engine.kernels.collision.batch.query_margin` at this distance; else, when a
-    root sphere is off its body's origin, with both centres placed in the world frame
-    (``|R_a c_a + p_a − R_b c_b − p_b| > r_a + r_b + slack``). The
-    multiresolution search then prunes the root pair too (its sphere test has a smaller
-    margin, and the two distances differ by rounding only, far below the slack), so
-    :func:`find_contacts` returns :data:`FAR_APART` without any kernel call. Host floats
-    only (about a microsecond)."""
+    """True when the two bodies are apart by more than twice the largest query margin:
+    first whatever the rotations, ``|p_b − p_a| > R_a + R_b + slack``, ``R`` each tree's
+    :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of a body lies
+    farther than ``R`` from its position) and ``slack`` twice the float32
+    :func:`~engine.kernels.collision.batch.query_margin` at this distance (host floats,
+    about a microsecond); else by the node bounds alone: a short depth-first search from
+    the root pair that drops node pairs whose spheres or boxes are apart by more than the
+    slack (:attr:`~engine.trees.views.TreeViews.bounds_table`,
+    :func:`~engine.kernels.collision.pair_query.roots_apart`: one small kernel call, B
+    placed by the search's own arithmetic, at most
+    :data:`~engine.kernels.collision.boxes.SEARCH_BUDGET` node pairs). The
+    multiresolution search makes the same test with its smaller margin first (its
+    outcome is monotone in the margin), so it prunes the root pair too:
+    :func:`find_contacts` returns :data:`FAR_APART` without running it."""
     ax, ay, az = pose_a.position.tolist()
     bx, by, bz = pose_b.position.tolist()
     dx, dy, dz = bx - ax, by - ay, bz - az
@@ -318,20 +325,15 @@ def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b
     slack = _FAR_SLACK * (SQRT3 * (va.geometry.extent + vb.geometry.extent) + distance)
     if distance > va.root_reach + vb.root_reach + slack:
         return True
-    (ca, ra), (cb, rb) = va.root_sphere, vb.root_sphere
-    if va.root_reach - ra + vb.root_reach - rb <= slack:
-        return False  # root spheres (nearly) centred at the origins: as tight as the next test
-    # the root spheres' centres in the world frame (a body whose origin lies off its centre)
-    g = [bx - ax, by - ay, bz - az]
-    for row, (ua, ub) in enumerate(
-        zip(pose_a.rotation.tolist(), pose_b.rotation.tolist(), strict=True)
-    ):
-        g[row] += (ub[0] * cb[0] + ub[1] * cb[1] + ub[2] * cb[2]) - (
-            ua[0] * ca[0] + ua[1] * ca[1] + ua[2] * ca[2]
-        )
-    reach = ra + rb + slack
-    gx, gy, gz = g
-    return gx * gx + gy * gy + gz * gz > reach * reach
+    return roots_apart(
+        va.bounds_table,
+        vb.bounds_table,
+        pose_a.position,
+        pose_a.orientation,
+        pose_b.position,
+        pose_b.orientation,
+        slack,
+    )
 
 
 def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:

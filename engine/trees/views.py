@@ -206,11 +206,68 @@ class TreeViews:
         out[:, 3] = radius + tree.leaf_epsilon
         return out
 
+    @cached_property
+    def boxes(self) -> np.ndarray:
+        """(N, 15) float64 oriented bounding box of each node's covered leaves' ε-regions,
+        body frame, as :mod:`~engine.kernels.collision.boxes` reads it: centre (columns
+        0–2), three orthonormal axes (3–5, 6–8, 9–11) and the half-extents along them
+        (12–14). The axes are the principal axes of the covered leaves' vertices, or the
+        body axes where that box is smaller (the leaf ε included); the half-extents reach
+        the farthest covered vertex along each axis, plus the leaf ε and a few ulp of the
+        tree's extent (a box grown by ε holds the ε-ball of each point it holds). So every
+        point a node's :attr:`spheres` row must hold lies in its box."""
+        tree = self._tree
+        n, leaf_nodes = len(tree), np.flatnonzero(tree.face >= 0)
+        verts = tree.triangles[leaf_nodes]  # (L, 3, 3) the covered points' hull vertices
+        # first and second moments of each node's covered vertices, children before parents
+        moments = np.zeros((n, 13))
+        moments[leaf_nodes, 0] = 3.0
+        moments[leaf_nodes, 1:4] = verts.sum(1)
+        moments[leaf_nodes, 4:] = np.einsum("lvi,lvj->lij", verts, verts).reshape(-1, 9)
+        low, high = np.empty((n, 3)), np.empty((n, 3))
+        low[leaf_nodes], high[leaf_nodes] = verts.min(1), verts.max(1)
+        for node in np.flatnonzero(tree.face < 0)[::-1]:  # BFS order: children after parents
+            kids = slice(tree.first_child[node], tree.first_child[node] + tree.child_count[node])
+            moments[node] = moments[kids].sum(0)
+            low[node], high[node] = low[kids].min(0), high[kids].max(0)
+        mean = moments[:, 1:4] / moments[:, :1]
+        covariance = moments[:, 4:].reshape(-1, 3, 3) / moments[:, :1, None]
+        covariance -= mean[:, :, None] * mean[:, None, :]
+        axes = np.linalg.eigh(covariance)[1].transpose(0, 2, 1).copy()  # rows: unit axes
+        # each node's covered vertices projected on its axes: every leaf up its ancestors
+        lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+        node = leaf_nodes
+        while len(node):
+            along = np.einsum("lvi,lki->lvk", verts, axes[node])
+            np.minimum.at(lo, node, along.min(1))
+            np.maximum.at(hi, node, along.max(1))
+            keep = tree.parent[node] >= 0
+            node, verts = tree.parent[node][keep], verts[keep]
+        grow = tree.leaf_epsilon + 16.0 * np.finfo(float).eps * max(self.geometry.extent, 1e-300)
+        principal = np.prod(hi - lo + 2 * grow, axis=1) < np.prod(high - low + 2 * grow, axis=1)
+        out = np.empty((n, 15))
+        out[:, :3] = np.where(
+            principal[:, None], np.einsum("nk,nki->ni", (lo + hi) / 2, axes), (low + high) / 2
+        )
+        out[:, 3:12] = np.where(principal[:, None], axes.reshape(-1, 9), np.eye(3).ravel())
+        out[:, 12:] = np.where(principal[:, None], (hi - lo) / 2, (high - low) / 2) + grow
+        return out  # writable, as the kernels take it (see TreeStructure); never written
+
+    @cached_property
+    def bounds_table(self) -> np.ndarray:
+        """(N, 21) float64 bounds of every node, body frame, as
+        :func:`~engine.kernels.collision.boxes.bounds_apart` reads them (the search's and
+        the early-out's bounds-only test): its :attr:`boxes` row, its :attr:`spheres` row,
+        first child and child count (0 for a leaf)."""
+        tree = self._tree
+        count = np.where(tree.face >= 0, 0, tree.child_count)
+        return np.hstack([self.boxes, self.spheres, tree.first_child[:, None], count[:, None]])
+
     def query_side_a(self, precision: str) -> tuple:
         """The A-side arguments of :func:`~engine.kernels.collision.pair_query.pair_query`
         (computed once per precision): ``(coords (N, 9), frames (N, 14)`` in
         ``precision``, ``epsilon, face, first_child, child_count (N,), spheres (N, 4),
-        face normals (F, 3) float64, extent, leaf ε)``."""
+        face normals (F, 3) float64, extent, leaf ε, boxes (N, 15), bounds table (N, 21))``."""
         side = self._query_sides.get(precision)
         if side is None:
             nodes = self.geometry.node_set(precision, False)
@@ -222,6 +279,8 @@ class TreeViews:
                 self.geometry.face_normals,
                 self.geometry.extent,
                 self._tree.leaf_epsilon,
+                self.boxes,
+                self.bounds_table,
             )
             self._query_sides[precision] = side
         return side
@@ -231,7 +290,7 @@ class TreeViews:
         """The B-side arguments of :func:`~engine.kernels.collision.pair_query.pair_query`:
         ``(coords (N, 9), frames (N, 14)`` float64 (the master set, body frame),
         ``epsilon, face, first_child, child_count (N,), spheres (N, 4), extent, leaf ε,
-        number of faces)``."""
+        number of faces, boxes (N, 15), bounds table (N, 21))``."""
         master = self.geometry.master
         return (
             master.coords_rm,
@@ -241,6 +300,8 @@ class TreeViews:
             self.geometry.extent,
             self._tree.leaf_epsilon,
             len(self.geometry.face_nodes),
+            self.boxes,
+            self.bounds_table,
         )
 
     @cached_property

@@ -17,9 +17,10 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.boxes import SEARCH_BUDGET, bounds_apart
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.traversal import traverse
-from engine.kernels.geometry.triangle_batch import N_STATS
+from engine.kernels.geometry.triangle_batch import N_STATS, STAT_SPHERES
 from engine.kernels.jit import JIT
 
 # Entries of the integer tuple pair_query returns.
@@ -38,6 +39,8 @@ def pair_query(
     normals_a,
     extent_a,
     leaf_epsilon_a,
+    boxes_a,
+    table_a,
     master_coords,
     master_frames,
     epsilon_b,
@@ -48,6 +51,8 @@ def pair_query(
     extent_b,
     leaf_epsilon_b,
     n_faces_b,
+    boxes_b,
+    table_b,
     position_a,
     orientation_a,
     position_b,
@@ -70,11 +75,19 @@ def pair_query(
 ):
     """Contacts of body A (its nodes ``coords_a … spheres_a`` as
     :func:`~engine.kernels.collision.traversal.query_kernel`'s ``body_a``, face normals
-    ``normals_a (F, 3)`` float64, largest body-frame coordinate ``extent_a``, leaf ε) at
+    ``normals_a (F, 3)`` float64, largest body-frame coordinate ``extent_a``, leaf ε, node
+    boxes ``boxes_a (N, 15)`` float64 as :mod:`~engine.kernels.collision.boxes` reads them,
+    or ``(0, 15)`` for none, and its node bounds ``table_a (N, 21)`` as
+    :func:`~engine.kernels.collision.boxes.bounds_apart` reads them, or ``(0, 21)``) at
     ``position_a (3,)``, ``orientation_a (4,)`` (unit quaternion) and body B
-    (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b`` faces) at ``position_b``,
-    ``orientation_b``. The arguments come in four groups: A's, B's (each fixed per tree,
-    so the host keeps them as one tuple per tree), the poses, and the parameters.
+    (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b`` faces; ``boxes_b``,
+    ``table_b``) at ``position_b``, ``orientation_b``. When the node bounds alone show the
+    bodies apart (``bounds_apart`` with the query margin, at most ``SEARCH_BUDGET`` node
+    pairs tested) the root pair counts as pruned and nothing else runs; else node pairs
+    are pruned by their bounding spheres, then by their boxes
+    (:func:`~engine.kernels.collision.traversal.traverse`). The arguments come in four
+    groups: A's, B's (each fixed per tree, so the host keeps them as one tuple per tree),
+    the poses, and the parameters.
 
     ``extent_*``, ``ulp``: the query margin's inputs
     (:func:`~engine.kernels.collision.batch.query_margin`); ``coarse_mode``, ``leaf_mode``
@@ -94,6 +107,14 @@ def pair_query(
     margin = query_margin(extent_a, extent_b, shift, ulp)
     stats = counters[:N_STATS]
     levels = counters[N_STATS:]
+    if (
+        table_a.shape[0] > 0
+        and table_b.shape[0] > 0
+        and bounds_apart(table_a, table_b, rotation, shift, margin, SEARCH_BUDGET)
+    ):  # the root pair pruned, as the traversal counts it
+        stats[STAT_SPHERES] += 1
+        none = np.int64(0)
+        return none, none, none, none, none
     depth, unfoldings, n, found, near = traverse(
         coords_a,
         frames_a,
@@ -109,6 +130,8 @@ def pair_query(
         first_b,
         count_b,
         spheres_b,
+        boxes_a,
+        boxes_b,
         rotation,
         shift,
         margin,
@@ -135,3 +158,16 @@ def pair_query(
         (out_pairs, out_points, out_normals, out_overlaps),
     )
     return n, np.int64(m), np.int64(k), depth, unfoldings
+
+
+@njit(**JIT)
+def roots_apart(table_a, table_b, position_a, orientation_a, position_b, orientation_b, margin):
+    """:func:`~engine.kernels.collision.boxes.bounds_apart` (budget ``SEARCH_BUDGET``) of
+    two bodies' node bounds ``table_* (N, 21)`` float64 (body frames) at ``position_*
+    (3,)``, ``orientation_* (4,)`` (unit quaternions), B placed in A's frame as
+    :func:`pair_query` places it (the same
+    :func:`~engine.kernels.collision.batch.relative_pose`); ``margin`` float64. Returns
+    bool: the host's early-out (with a larger margin than the query's, so that
+    :func:`pair_query` then prunes the root pair too)."""
+    _, rotation, shift = relative_pose(position_a, orientation_a, position_b, orientation_b)
+    return bounds_apart(table_a, table_b, rotation, shift, margin, SEARCH_BUDGET)

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from engine.kernels.collision.boxes import BOX_COLUMNS, box_apart, box_set_up, place_box
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.geometry.triangle_batch import (
@@ -79,6 +80,8 @@ def query_kernel(
         first_b,
         count_b,
         spheres_b,
+        np.empty((0, BOX_COLUMNS)),  # no boxes: spheres only
+        np.empty((0, BOX_COLUMNS)),
         pose[0],
         pose[1],
         margin,
@@ -107,6 +110,8 @@ def traverse(
     first_b,
     count_b,
     spheres_b,
+    boxes_a,
+    boxes_b,
     rotation,
     shift,
     margin,
@@ -116,16 +121,19 @@ def traverse(
     stats,
     levels,
 ):
-    """The pair-front search (arguments as :func:`query_kernel`'s, flattened); returns
+    """The pair-front search (arguments as :func:`query_kernel`'s, flattened, and each
+    node's oriented bounding box ``boxes_* (N, 15)`` float64, body frame, as
+    :mod:`~engine.kernels.collision.boxes` reads them; ``(0, 15)`` for none); returns
     ``(depth, unfoldings, n, found, near)``: the first ``n`` rows of ``found``
     (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) are the leaf pairs in
     contact (A's frame), ``near`` as in :func:`query_kernel`.
 
-    A node pair whose bounding spheres are apart (by more than ``margin``) cannot hold a
-    leaf pair in contact: it is pruned before any triangle comparison, the root pair
-    included. A hit pair (i, j) unfolds in one pass: A's children are tested against
-    j's sphere and B's children against i's, then the surviving children against each
-    other; every child pair not put in the next front counts in ``stats[STAT_SPHERES]``.
+    A node pair whose bounding spheres, or (given) boxes, are apart (by more than
+    ``margin``) cannot hold a leaf pair in contact: it is pruned before any triangle
+    comparison, the root pair included. A hit pair (i, j) unfolds in one pass: A's
+    children are tested against j's sphere and B's children against i's, then the
+    surviving children against each other (spheres, then boxes); every child pair not
+    put in the next front counts in ``stats[STAT_SPHERES]``.
     The fronts are two buffers reused across levels (grown by doubling). B's nodes are
     moved into A's frame, and the ε of both trees get their margin, only for the nodes
     reached (a level's new B nodes moved together, by
@@ -138,7 +146,10 @@ def traverse(
     centres_b = np.empty((nb, 3))  # B's sphere centres in A's frame, once needed
     centred = np.zeros(nb, np.bool_)
     _centre(spheres_b, centres_b, centred, ZERO, rotation, shift)
-    if _far(spheres_a, ZERO, centres_b, spheres_b, ZERO, reach):  # before any other set-up
+    boxed, placed_b, placed = box_set_up(boxes_a, boxes_b, rotation, shift)
+    if _far(spheres_a, ZERO, centres_b, spheres_b, ZERO, reach) or (
+        boxed and box_apart(boxes_a, ZERO, placed_b, ZERO, reach)
+    ):  # before any other set-up
         stats[STAT_SPHERES] += 1
         return ZERO, ZERO, ZERO, result_buffers(0, coords_a), np.zeros((0, 2), np.int64)
     moved = np.zeros(nb, np.bool_)  # B's node moved, its ε set
@@ -214,6 +225,8 @@ def traverse(
                 if b1 - b0 == 1 or not _far(spheres_a, i, centres_b, spheres_b, cb, reach):
                     keep_b[kb] = cb
                     kb += 1
+                    if boxed:
+                        place_box(boxes_b, cb, rotation, shift, placed_b, placed)
             cross = a1 - a0 > 1 and b1 - b0 > 1  # else the tests above were the pairs'
             if following.shape[0] < r + ka * kb:
                 following = _grown_pairs(following, r, r + ka * kb)
@@ -223,6 +236,8 @@ def traverse(
                 for v in range(kb):
                     cb = keep_b[v]
                     if cross and _far(spheres_a, ca, centres_b, spheres_b, cb, reach):
+                        continue
+                    if boxed and box_apart(boxes_a, ca, placed_b, cb, reach):
                         continue
                     following[r, 0], following[r, 1] = ca, cb
                     r += 1

@@ -54,7 +54,13 @@ def test_batch_equals_single_queries(trees, precision, threads):
         np.testing.assert_array_equal(got.points, want.points)
         np.testing.assert_array_equal(got.normals, want.normals)
         np.testing.assert_array_equal(got.overlaps, want.overlaps)
-        assert got.stats == want.stats
+        # the batch prunes node pairs by their spheres only, a single query by their
+        # boxes too: a subset of the batch's front, the same contacts
+        assert got.stats.comparisons >= want.stats.comparisons
+        assert (got.stats.raw_contacts, got.stats.merged_contacts) == (
+            want.stats.raw_contacts,
+            want.stats.merged_contacts,
+        )
         touching += len(want.pairs) > 0
     assert 0 < touching < len(queries)
 

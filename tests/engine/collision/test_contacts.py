@@ -315,16 +315,15 @@ def test_far_early_out_never_drops_what_the_kernel_keeps(
 
 
 def test_far_early_out_threshold_and_result():
-    """Just above the threshold the early-out returns the shared empty result (read-only,
-    the kernel's counters for a pruned root); just below it the kernel runs, and closer
-    still (within the kernel's own margin) the kernel no longer prunes the root."""
+    """Just above the spheres' threshold the early-out returns the shared empty result
+    (read-only, the kernel's counters for a pruned root); just below it the root boxes
+    settle it; two spheres touching, the kernel no longer prunes the root."""
     ta, tb = OFF_CENTRE["a"], OFF_CENTRE["b"]
     reach = ta.views.root_reach + tb.views.root_reach
     slack = _slack(ta, tb, reach)
     unit_turn = np.array([1.0, 0.0, 0.0, 0.0])
     above = _at_threshold(ta, tb, 1.01 * slack, unit_turn, unit_turn)
     below = _at_threshold(ta, tb, 0.99 * slack, unit_turn, unit_turn)
-    touching = _at_threshold(ta, tb, -1e-6, unit_turn, unit_turn)
     assert contacts.far_apart(ta, *above[:1], tb, above[1])
     res = find_contacts(ta, above[0], tb, above[1])
     assert res is contacts.FAR_APART and len(res.pairs) == len(res.points) == 0
@@ -336,9 +335,19 @@ def test_far_early_out_threshold_and_result():
             ta, *above[:1], tb, above[1], "hybrid", True, "float64", "pairs", 1
         ).stats
     )
-    assert not contacts.far_apart(ta, below[0], tb, below[1])
-    assert find_contacts(ta, below[0], tb, below[1]) is not contacts.FAR_APART
-    near = find_contacts(ta, touching[0], tb, touching[1])
+    # just below the spheres' threshold the root boxes (far tighter than the spheres of
+    # these boxes) still settle it, and the kernel prunes the root pair by its boxes too
+    # (test_boxes.py sweeps the boxes' own threshold)
+    assert contacts.far_apart(ta, below[0], tb, below[1])
+    assert (
+        contacts._search(ta, *below[:1], tb, below[1], "hybrid", True, "float64", "pairs", 1).stats
+        == contacts.FAR_APART.stats
+    )
+    # two spheres whose root spheres overlap by 1e-6 (their boxes are no tighter there):
+    # the kernel evaluates the root pair
+    sphere = OFF_CENTRE["sphere"]
+    touching = _at_threshold(sphere, sphere, -1e-6, unit_turn, unit_turn)
+    near = find_contacts(sphere, touching[0], sphere, touching[1])
     assert near.stats.comparisons_per_level[:1] == (1,)  # the root pair was evaluated
     # the flat and active-set searches keep their own counters (no early-out)
     flat = find_contacts(ta, above[0], tb, above[1], hierarchy=False)

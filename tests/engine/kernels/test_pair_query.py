@@ -19,6 +19,7 @@ from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry import triangle_batch as tb
 
 LEVELS = 64
+NO_BOXES = np.empty((0, 15)), np.empty((0, 21))  # no node boxes, no bounds table
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +42,12 @@ def _poses(seed: int, count: int):
         yield pa, pb
 
 
-def _run(ta, pa, tb_, pb, precision, capacity):
+def _run(ta, pa, tb_, pb, precision, capacity, boxes=True):
+    """``pair_query`` on the trees' cached sides; ``boxes=False`` passes no node boxes and
+    no bounds table (spheres only, as ``query_kernel`` prunes)."""
+    side_a, side_b = ta.views.query_side_a(precision), tb_.views.query_side_b
+    if not boxes:
+        side_a, side_b = (*side_a[:-2], *NO_BOXES), (*side_b[:-2], *NO_BOXES)
     parameters = contacts._parameters("hybrid", precision, 1)
     counters = np.zeros(tb.N_STATS + LEVELS, np.int64)
     out = (
@@ -53,8 +59,8 @@ def _run(ta, pa, tb_, pb, precision, capacity):
     tiny = TINY * max(ta.bounding_radius, tb_.bounding_radius)
     merge = min(ta.leaf_epsilon, tb_.leaf_epsilon)
     found, m, k, depth, unfoldings = pair_query(
-        *ta.views.query_side_a(precision),
-        *tb_.views.query_side_b,
+        *side_a,
+        *side_b,
         pa.position,
         pa.orientation,
         pb.position,
@@ -87,10 +93,23 @@ def _nested(ta, pa, tb_, pb, precision):
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_flat_entry_equals_nested_traversal(trees, precision):
+    """Without node boxes, the flat entry is the nested traversal bit for bit, counters
+    included; with them (as ``find_contacts`` runs it) the contacts are the same and the
+    boxes prune node pairs the spheres keep."""
     ta, tb_ = trees
     touching = 0
+    compared = {True: 0, False: 0}
     for pa, pb in _poses(3, 40):
-        found, m, k, depth, unfoldings, counters, out = _run(ta, pa, tb_, pb, precision, 4096)
+        boxed = _run(ta, pa, tb_, pb, precision, 4096)
+        found, m, k, depth, unfoldings, counters, out = _run(
+            ta, pa, tb_, pb, precision, 4096, boxes=False
+        )
+        assert boxed[1:3] == (m, k)
+        for got, want, rows in zip(boxed[-1], out, (m, k, k, k), strict=True):
+            np.testing.assert_array_equal(got[:rows], want[:rows])
+        assert boxed[5][tb.N_STATS :].sum() <= counters[tb.N_STATS :].sum()
+        for with_boxes, run in ((True, boxed[5]), (False, counters)):
+            compared[with_boxes] += run[tb.N_STATS :].sum()
         depth2, unfoldings2, result, stats, levels = _nested(ta, pa, tb_, pb, precision)
         assert m >= 0 and found >= m
         assert (depth, unfoldings) == (depth2, unfoldings2)
@@ -100,6 +119,7 @@ def test_flat_entry_equals_nested_traversal(trees, precision):
             np.testing.assert_array_equal(got, want)
         touching += m > 0
     assert 0 < touching < 40
+    assert compared[True] < compared[False]
 
 
 def test_without_room_nothing_is_written(trees):

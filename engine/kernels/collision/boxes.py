@@ -1,0 +1,222 @@
+"""Oriented bounding boxes of tree nodes: the separating-axis test of two boxes with a margin.
+
+A box row is ``(15,)`` float64, as :attr:`~engine.trees.views.TreeViews.boxes` writes them
+(body frame): centre (columns 0–2), three orthonormal unit axes (3–5, 6–8, 9–11) and the
+half-extents along them (12–14). The traversal places B's rows into A's frame once per node
+and query (:func:`place_box`), then :func:`box_apart` tests a node pair after its bounding
+spheres have passed: two convex sets are disjoint by more than ``margin`` when some axis
+separates their projections by more than ``margin`` (the 15 axes of two boxes: 3 + 3 face
+normals and 9 edge cross products; a cross product of unit vectors is no longer than 1, so
+its unnormalised gap exceeding ``margin`` is a true gap of more than ``margin``).
+
+The helpers are called, not inlined: one compiled body serves the traversal and the host's
+root test (:func:`~engine.kernels.collision.pair_query.roots_apart`), so both get the same
+bits for the same boxes and pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.kernels.jit import JIT
+
+BOX_COLUMNS = 15  # centre (3), axes (3 × 3, one per row), half-extents (3)
+TABLE_COLUMNS = 21  # a box (15), a sphere: centre (3), radius; first child, child count
+SEARCH_BUDGET = 256  # node pairs a bounds-only search tests before it gives up
+
+
+@njit(**JIT)
+def place_box(boxes_b, j, rotation, shift, placed, done):
+    """B's box row ``j`` of ``boxes_b (N, 15)`` float64 moved into A's frame by
+    ``x ↦ rotation x + shift`` (``rotation (3, 3)``, ``shift (3,)`` float64), into
+    ``placed[j]`` (``placed (N, 15)`` float64), unless ``done[j]`` (``(N,)`` bool, then
+    set)."""
+    if not done[j]:
+        for r in range(3):
+            placed[j, r] = (
+                rotation[r, 0] * boxes_b[j, 0]
+                + rotation[r, 1] * boxes_b[j, 1]
+                + rotation[r, 2] * boxes_b[j, 2]
+                + shift[r]
+            )
+        for c in range(3, 12, 3):
+            for r in range(3):
+                placed[j, c + r] = (
+                    rotation[r, 0] * boxes_b[j, c]
+                    + rotation[r, 1] * boxes_b[j, c + 1]
+                    + rotation[r, 2] * boxes_b[j, c + 2]
+                )
+        for c in range(12, 15):
+            placed[j, c] = boxes_b[j, c]
+        done[j] = True
+
+
+@njit(**JIT)
+def box_apart(boxes_a, i, placed_b, j, margin):
+    """True when A's box row ``i`` of ``boxes_a (Na, 15)`` and B's placed row ``j`` of
+    ``placed_b (Nb, 15)`` (both float64, A's frame) are apart by more than ``margin``
+    along one of their 15 separating axes (``margin`` float64 ≥ 0; see the module)."""
+    dx = placed_b[j, 0] - boxes_a[i, 0]
+    dy = placed_b[j, 1] - boxes_a[i, 1]
+    dz = placed_b[j, 2] - boxes_a[i, 2]
+    a00, a01, a02 = boxes_a[i, 3], boxes_a[i, 4], boxes_a[i, 5]
+    a10, a11, a12 = boxes_a[i, 6], boxes_a[i, 7], boxes_a[i, 8]
+    a20, a21, a22 = boxes_a[i, 9], boxes_a[i, 10], boxes_a[i, 11]
+    ha0, ha1, ha2 = boxes_a[i, 12], boxes_a[i, 13], boxes_a[i, 14]
+    hb0, hb1, hb2 = placed_b[j, 12], placed_b[j, 13], placed_b[j, 14]
+    # the centres' offset and B's axes in A's box coordinates
+    t0 = a00 * dx + a01 * dy + a02 * dz
+    t1 = a10 * dx + a11 * dy + a12 * dz
+    t2 = a20 * dx + a21 * dy + a22 * dz
+    b0x, b0y, b0z = placed_b[j, 3], placed_b[j, 4], placed_b[j, 5]
+    b1x, b1y, b1z = placed_b[j, 6], placed_b[j, 7], placed_b[j, 8]
+    b2x, b2y, b2z = placed_b[j, 9], placed_b[j, 10], placed_b[j, 11]
+    r00 = a00 * b0x + a01 * b0y + a02 * b0z
+    r01 = a00 * b1x + a01 * b1y + a02 * b1z
+    r02 = a00 * b2x + a01 * b2y + a02 * b2z
+    r10 = a10 * b0x + a11 * b0y + a12 * b0z
+    r11 = a10 * b1x + a11 * b1y + a12 * b1z
+    r12 = a10 * b2x + a11 * b2y + a12 * b2z
+    r20 = a20 * b0x + a21 * b0y + a22 * b0z
+    r21 = a20 * b1x + a21 * b1y + a22 * b1z
+    r22 = a20 * b2x + a21 * b2y + a22 * b2z
+    e00, e01, e02 = abs(r00), abs(r01), abs(r02)
+    e10, e11, e12 = abs(r10), abs(r11), abs(r12)
+    e20, e21, e22 = abs(r20), abs(r21), abs(r22)
+    # A's face normals
+    if abs(t0) > ha0 + hb0 * e00 + hb1 * e01 + hb2 * e02 + margin:
+        return True
+    if abs(t1) > ha1 + hb0 * e10 + hb1 * e11 + hb2 * e12 + margin:
+        return True
+    if abs(t2) > ha2 + hb0 * e20 + hb1 * e21 + hb2 * e22 + margin:
+        return True
+    # B's face normals
+    if abs(t0 * r00 + t1 * r10 + t2 * r20) > ha0 * e00 + ha1 * e10 + ha2 * e20 + hb0 + margin:
+        return True
+    if abs(t0 * r01 + t1 * r11 + t2 * r21) > ha0 * e01 + ha1 * e11 + ha2 * e21 + hb1 + margin:
+        return True
+    if abs(t0 * r02 + t1 * r12 + t2 * r22) > ha0 * e02 + ha1 * e12 + ha2 * e22 + hb2 + margin:
+        return True
+    # edge cross products a_k × b_l
+    if abs(t2 * r10 - t1 * r20) > ha1 * e20 + ha2 * e10 + hb1 * e02 + hb2 * e01 + margin:
+        return True
+    if abs(t2 * r11 - t1 * r21) > ha1 * e21 + ha2 * e11 + hb0 * e02 + hb2 * e00 + margin:
+        return True
+    if abs(t2 * r12 - t1 * r22) > ha1 * e22 + ha2 * e12 + hb0 * e01 + hb1 * e00 + margin:
+        return True
+    if abs(t0 * r20 - t2 * r00) > ha0 * e20 + ha2 * e00 + hb1 * e12 + hb2 * e11 + margin:
+        return True
+    if abs(t0 * r21 - t2 * r01) > ha0 * e21 + ha2 * e01 + hb0 * e12 + hb2 * e10 + margin:
+        return True
+    if abs(t0 * r22 - t2 * r02) > ha0 * e22 + ha2 * e02 + hb0 * e11 + hb1 * e10 + margin:
+        return True
+    if abs(t1 * r00 - t0 * r10) > ha0 * e10 + ha1 * e00 + hb1 * e22 + hb2 * e21 + margin:
+        return True
+    if abs(t1 * r01 - t0 * r11) > ha0 * e11 + ha1 * e01 + hb0 * e22 + hb2 * e20 + margin:
+        return True
+    return abs(t1 * r02 - t0 * r12) > ha0 * e12 + ha1 * e02 + hb0 * e21 + hb1 * e20 + margin
+
+
+@njit(**JIT)
+def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
+    """True when the node bounds alone show that no leaf pair of two bodies is within
+    ``margin`` (float64) of contact: ``table_* (N, 21)`` float64 rows per node, body frames,
+    each a box (columns 0–14, as in the module), a sphere (15–17 centre, 18 radius), the
+    first child (19) and the child count (20, 0 for a leaf); B's frame maps to A's by ``x ↦
+    rotation x + shift``. A depth-first search from the root pair drops every pair whose
+    spheres or boxes are apart by more than ``margin`` and replaces every other by the
+    pairs of its larger node's children (larger sphere; a leaf stands for itself). False as
+    soon as a pair of two leaves remains or more than ``budget`` pairs were tested. The
+    outcome is monotone in ``margin``: with a smaller one every pair dropped is dropped
+    too, so a search that ends True within the budget ends True with any smaller margin."""
+    stack = np.empty((budget + 1, 2), np.int64)
+    placed = np.empty((1, 19))
+    _place(table_b, 0, rotation, shift, placed)
+    if _row_pair_apart(table_a, 0, placed, 0, margin):
+        return True
+    stack[0, 0], stack[0, 1] = 0, 0
+    top, tests = 1, 1
+    while top > 0:
+        top -= 1
+        i, j = stack[top, 0], stack[top, 1]
+        count_a, count_b = np.int64(table_a[i, 20]), np.int64(table_b[j, 20])
+        if count_a == 0 and count_b == 0:
+            return False  # two leaves that may touch
+        if count_a > 0 and (count_b == 0 or table_a[i, 18] >= table_b[j, 18]):
+            _place(table_b, j, rotation, shift, placed)
+            first = np.int64(table_a[i, 19])
+            for c in range(first, first + count_a):
+                tests += 1
+                if tests > budget:
+                    return False
+                if not _row_pair_apart(table_a, c, placed, 0, margin):
+                    stack[top, 0], stack[top, 1] = c, j
+                    top += 1
+        else:
+            first = np.int64(table_b[j, 19])
+            for c in range(first, first + count_b):
+                tests += 1
+                if tests > budget:
+                    return False
+                _place(table_b, c, rotation, shift, placed)
+                if not _row_pair_apart(table_a, i, placed, 0, margin):
+                    stack[top, 0], stack[top, 1] = i, c
+                    top += 1
+    return True
+
+
+@njit(**JIT)
+def _place(table_b, j, rotation, shift, out):
+    """B's node ``j`` (its box and sphere, columns 0–18 of ``table_b``) moved into A's frame,
+    into ``out[0]`` (``(1, 19)`` float64)."""
+    for r in range(3):
+        out[0, r] = (
+            rotation[r, 0] * table_b[j, 0]
+            + rotation[r, 1] * table_b[j, 1]
+            + rotation[r, 2] * table_b[j, 2]
+            + shift[r]
+        )
+        out[0, 15 + r] = (
+            rotation[r, 0] * table_b[j, 15]
+            + rotation[r, 1] * table_b[j, 16]
+            + rotation[r, 2] * table_b[j, 17]
+            + shift[r]
+        )
+    for c in range(3, 12, 3):
+        for r in range(3):
+            out[0, c + r] = (
+                rotation[r, 0] * table_b[j, c]
+                + rotation[r, 1] * table_b[j, c + 1]
+                + rotation[r, 2] * table_b[j, c + 2]
+            )
+    for c in (12, 13, 14, 18):
+        out[0, c] = table_b[j, c]
+
+
+@njit(**JIT)
+def _row_pair_apart(rows_a, i, placed, j, margin):
+    """Rows ``i`` of ``rows_a`` and ``j`` of ``placed`` (:func:`bounds_apart`'s layout, A's
+    frame; box, then sphere) apart by more than ``margin``: their spheres, else their
+    boxes."""
+    dx = rows_a[i, 15] - placed[j, 15]
+    dy = rows_a[i, 16] - placed[j, 16]
+    dz = rows_a[i, 17] - placed[j, 17]
+    reach = rows_a[i, 18] + placed[j, 18] + margin
+    if dx * dx + dy * dy + dz * dz > reach * reach:
+        return True
+    return box_apart(rows_a, i, placed, j, margin)
+
+
+@njit(**JIT)
+def box_set_up(boxes_a, boxes_b, rotation, shift):
+    """``(boxed, placed, done)`` for a query with node boxes ``boxes_* (N, 15)`` float64
+    (``(0, 15)``: none, then ``boxed`` is False and the buffers empty): ``placed (Nb, 15)``
+    float64 and ``done (Nb,)`` bool as :func:`place_box` fills them, B's root placed."""
+    boxed = boxes_a.shape[0] > 0 and boxes_b.shape[0] > 0
+    nb = boxes_b.shape[0] if boxed else 0
+    placed = np.empty((nb, BOX_COLUMNS))
+    done = np.zeros(nb, np.bool_)
+    if boxed:
+        place_box(boxes_b, 0, rotation, shift, placed, done)
+    return boxed, placed, done
