@@ -10,7 +10,8 @@ kernel sees the same bits as there).
 they cover (g = surrogate ε − leaf ε, 0 for a leaf; every point of a covered face lies
 within g of the node's triangle, see :mod:`engine.collision.proximity`):
 
-1. spheres: ``|c_a − c_b| − r_a − r_b`` (bounding spheres of the covered faces);
+1. spheres: ``|c_a − c_b| − r_a − r_b`` (bounding spheres of the covered faces; a pair
+   is dropped on squared distances, without a square root);
 2. boxes: the gap of the two nodes' oriented boxes on their 6 axes and the axis through
    their centres (:func:`~engine.kernels.collision.distance_bounds.box_gap`);
 3. triangles: the exact distance of the two node triangles less ``g_a + g_b``
@@ -21,12 +22,14 @@ Bounds 1 and 2 are cheap (a few dozen flops); 3 is an exact triangle distance, s
 computed lazily: only for pairs that reach the top of the heap, a block at a time.
 
 **Search.** A greedy descent (the child with the smallest sphere bound, down to a leaf
-pair) gives a first upper bound: the best distance. A binary heap holds node pairs keyed
-on their lower bound clamped at 0, each marked *refined* once it has bound 3; ties pop
-the most recently pushed first, so that while bounds are ≤ 0 the search runs depth
-first, nearest child first, towards a crossing pair. The top pair is looked at; if its
-bound, less the rounding margin, exceeds the best distance the search ends (every other
-bound is at least as large). Else:
+pair) gives a first upper bound: the best distance; when it finds no crossing pair and
+the root boxes overlap, a second descent guided by the larger of bounds 1 and 2 (it
+finds a crossing pair of overlapping bodies far more often) may lower it. A binary heap
+holds node pairs keyed on their lower bound clamped at 0, each marked *refined* once it
+has bound 3; ties pop the most recently pushed first, so that while bounds are ≤ 0 the
+search runs depth first, nearest child first, towards a crossing pair. The top pair is
+looked at; if its bound, less the rounding margin, exceeds the best distance the search
+ends (every other bound is at least as large). Else:
 
 * an unrefined leaf pair, or unrefined pair with a positive bound, is refined together
   with the next such pairs on top (up to ``POPS``): bound 3 in one vectorised call; each
@@ -186,12 +189,26 @@ def _sphere(a, i, b, j, r, s):
 
 
 @njit(**INLINE)
+def _far(a, i, b, j, r, s, limit):
+    """``(far, d2)``: the sphere bound of the pair (i, j) exceeds ``limit`` (tested on
+    squares, no square root), and the squared distance of the centres."""
+    cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
+    cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
+    cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
+    ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
+    d2 = ux * ux + uy * uy + uz * uz
+    reach = limit + a[i, RADIUS] + b[j, RADIUS]
+    return reach >= 0.0 and d2 > reach * reach, d2
+
+
+@njit(**INLINE)
 def _bound(a, i, b, j, r, s, best, margin):
     """Bound 1 of the pair (i, j), then (unless that one drops the pair, ``bound − margin
-    > best``) the larger of bounds 1 and 2."""
-    sphere = _sphere(a, i, b, j, r, s)
-    if sphere - margin > best:
-        return sphere
+    > best``: then +inf) the larger of bounds 1 and 2."""
+    far, d2 = _far(a, i, b, j, r, s, best + margin)
+    if far:
+        return np.inf
+    sphere = sqrt(d2) - a[i, RADIUS] - b[j, RADIUS]
     return max(sphere, box_gap(a, i, b, j, r, s))
 
 
@@ -279,27 +296,36 @@ def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, ori
     b_coords, b_frames = one_b[0:9], one_b[9:23]
     pairs = exact = unfolded = pruned = ZERO
 
-    # greedy descent (the larger sphere unfolds, to the child with the smallest sphere
-    # bound): a first upper bound
-    i, j = ZERO, ZERO
-    while a[i, COUNT] > 0 or b[j, COUNT] > 0:
-        split = _split_a(a[i, COUNT], a[i, RADIUS], b[j, COUNT], b[j, RADIUS])
-        first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
-        count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
-        pick, low = first, np.inf
-        for c in range(first, first + count):
-            ci, cj = (c, j) if split else (i, c)
-            bound = _sphere(a, ci, b, cj, r, s)
-            if bound < low:
-                pick, low = c, bound
-        if split:
-            i = pick
-        else:
-            j = pick
-    _gather_b(b, j, r, s, ZERO, b_coords, b_frames)
-    d, p, q = exact_point(a_coords, a_frames, i, b_coords, b_frames, ZERO, one)
-    exact += 1
-    best, best_i, best_j, best_p, best_q = np.float64(d), i, j, p, q
+    # greedy descents (the larger sphere unfolds, to the child with the smallest sphere
+    # bound; then, if that found no crossing and the root boxes overlap, to the child
+    # with the smallest box bound): a first upper bound
+    best, best_i, best_j = np.inf, ZERO, ZERO
+    best_p = best_q = (one, one, one)
+    for guide in range(2):
+        if guide == 1 and not (best > 0.0 and box_gap(a, ZERO, b, ZERO, r, s) <= 0.0):
+            break
+        i, j = ZERO, ZERO
+        while a[i, COUNT] > 0 or b[j, COUNT] > 0:
+            split = _split_a(a[i, COUNT], a[i, RADIUS], b[j, COUNT], b[j, RADIUS])
+            first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
+            count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
+            pick, low = first, np.inf
+            for c in range(first, first + count):
+                ci, cj = (c, j) if split else (i, c)
+                bound = _sphere(a, ci, b, cj, r, s)
+                if guide == 1:
+                    bound = max(bound, box_gap(a, ci, b, cj, r, s))
+                if bound < low:
+                    pick, low = c, bound
+            if split:
+                i = pick
+            else:
+                j = pick
+        _gather_b(b, j, r, s, ZERO, b_coords, b_frames)
+        d, p, q = exact_point(a_coords, a_frames, i, b_coords, b_frames, ZERO, one)
+        exact += 1
+        if d < best:
+            best, best_i, best_j, best_p, best_q = np.float64(d), i, j, p, q
 
     # best-first search
     entries = size = largest = ZERO
@@ -374,13 +400,13 @@ def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, ori
             keep = np.empty((2, max(count_a, count_b)), np.int64)
         kept_a = kept_b = 0  # both unfold: each child against the other node's sphere
         for ci in range(first_a, first_a + count_a):
-            if count_b > 1 and _sphere(a, ci, b, j, r, s) - margin > best:
+            if count_b > 1 and _far(a, ci, b, j, r, s, best + margin)[0]:
                 pruned += count_b
                 continue
             keep[0, kept_a] = ci
             kept_a += 1
         for cj in range(first_b, first_b + count_b):
-            if count_a > 1 and _sphere(a, i, b, cj, r, s) - margin > best:
+            if count_a > 1 and _far(a, i, b, cj, r, s, best + margin)[0]:
                 pruned += kept_a
                 continue
             keep[1, kept_b] = cj
