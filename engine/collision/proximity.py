@@ -15,14 +15,16 @@ and ``d(t_a, t_b) ≥ |c_a − c_b| − r_a − r_b`` for the bounding spheres (
 covered triangles (:attr:`~engine.trees.views.TreeViews.distance_bounds`); the exact
 distance of any leaf pair is an upper bound on the minimum.
 
+Every point of a node's covered faces also lies in the node's oriented box (principal
+axes of the covered vertices, :attr:`~engine.trees.views.TreeViews.distance_boxes`), so
+the gap of two boxes projected on any axis is a lower bound too.
+
 **Search** (one call of :func:`~engine.kernels.collision.distance_search.distance_kernel`,
 whose module documents it): a greedy descent gives a first upper bound; then a best-first
-search pops node pairs from a heap keyed on their lower bound, unfolds the node with the
-larger bounding sphere (both nodes when their spheres are of a size and the pair is
-apart), bounds each child pair with its spheres, the projection of the two node
-triangles on the axis through the sphere centres, and the exact distance of the two node
-triangles less their g (vectorised over the children of up to 8 pairs), and evaluates
-the surviving leaf pairs with the exact kernel
+search over a heap of node pairs keyed on their lower bound: child pairs get the cheap
+sphere and box bounds when their parent unfolds, and the exact distance of the two node
+triangles less their g only when they reach the top of the heap (vectorised over up to 8
+pairs); leaf pairs at the top are evaluated with the exact kernel
 (:func:`~engine.kernels.geometry.triangle_batch.exact_point`, in ``precision``, on B's
 triangles moved as the contact search moves them). It stops when the smallest bound in
 the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
@@ -42,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine.arguments import check_precision
-from engine.collision.query import ULP, check_posed_pair
+from engine.collision.query import check_posed_pair
 from engine.geometry.pose import Pose
 from engine.kernels.collision import distance_search as ds
 from engine.trees.tree import SurrogateTree
@@ -63,8 +65,8 @@ class MeshDistance:
     probes : int — leaf pairs whose exact distance and closest points were evaluated
     rounds : int — node pairs unfolded
     largest_front : int — largest number of node pairs waiting in the search's heap
-    sphere_pruned : int — child pairs dropped by their sphere or projection bound, before
-        any triangle distance
+    sphere_pruned : int — child pairs dropped by their sphere or box bound, before any
+        triangle distance
     """
 
     distance: float
@@ -102,21 +104,19 @@ def mesh_distance(
     dtype = check_precision(precision)
     rows_a, rows_b = tree_a.views.distance_rows, tree_b.views.distance_rows
     prepared_a = rows_a if dtype is np.float64 else tree_a.views.prepared_rows(precision)
-    out_i, out_f = np.empty(ds.N_OUT_I, np.int64), np.empty(ds.N_OUT_F)
-    ds.distance_kernel(
+    found = ds.distance_kernel(
         prepared_a, rows_a, rows_b,
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation,
-        ULP[dtype], dtype(1.0), out_i, out_f,
     )  # fmt: skip
-    pairs, probes, rounds, largest, pruned = out_i[ds.OUT_PAIRS :].tolist()
+    distance, face_a, face_b, point_a, point_b, pairs, probes, rounds, largest, pruned = found
     return MeshDistance(
-        distance=float(out_f[ds.OUT_DISTANCE]),
-        faces=out_i[: ds.OUT_FACE_B + 1],
-        point_a=out_f[ds.OUT_POINT_A : ds.OUT_POINT_A + 3],
-        point_b=out_f[ds.OUT_POINT_B : ds.OUT_POINT_B + 3],
-        node_pairs=pairs,
-        probes=probes,
-        rounds=rounds,
-        largest_front=largest,
-        sphere_pruned=pruned,
+        distance,
+        np.array((face_a, face_b)),
+        np.array(point_a),
+        np.array(point_b),
+        pairs,
+        probes,
+        rounds,
+        largest,
+        pruned,
     )

@@ -17,6 +17,7 @@ import numpy as np
 
 from engine.geometry.distance import TriangleSet
 from engine.geometry.mesh import Mesh
+from engine.kernels.collision import distance_bounds as db
 from engine.kernels.collision import distance_search as ds
 
 __all__ = ["DistanceBounds", "TreeGeometry", "TreeStructure", "TreeViews"]
@@ -335,11 +336,34 @@ class TreeViews:
         )
 
     @cached_property
+    def distance_boxes(self) -> np.ndarray:
+        """``(N, 15)`` float64 oriented box of each node's covered faces, body frame
+        (the layout of :mod:`~engine.kernels.collision.distance_bounds`: centre, three
+        unit axes row by row, half-extents): axes the principal axes of the covered
+        vertices (eigenvectors of their second moments about the node's sphere centre),
+        extents their range along each axis, so the box holds every covered face."""
+        tree = self._tree
+        n = len(tree)
+        triangles = np.ascontiguousarray(tree.triangles, dtype=np.float64)
+        face, parent = tree.face.astype(np.int64), tree.parent.astype(np.int64)
+        second = np.zeros((n, 3, 3))
+        db.box_moments(triangles, face, parent, np.ascontiguousarray(self.spheres[:, :3]), second)
+        axes = np.ascontiguousarray(np.swapaxes(np.linalg.eigh(second)[1], 1, 2))  # rows
+        low, high = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+        db.box_extents(triangles, face, parent, axes, low, high)
+        out = np.empty((n, db.N_BOX))
+        out[:, 0:3] = np.einsum("nk,nkj->nj", (low + high) / 2, axes)
+        out[:, 3:12] = axes.reshape(n, 9)
+        out[:, 12:15] = (high - low) / 2
+        return out
+
+    @cached_property
     def distance_rows(self) -> np.ndarray:
         """``(N, N_COLUMNS)`` float64 read-only node rows as
         :func:`~engine.kernels.collision.distance_search.distance_kernel` reads them (the
         column layout is that module's): each node's triangle and frame (the master set),
-        bounding sphere, ``g``, children, face and the tree's extent."""
+        bounding sphere, ``g``, children, face, the tree's extent and the node's box
+        (:attr:`distance_boxes`)."""
         master, bounds = self.geometry.master, self.distance_bounds
         rows = np.empty((len(self._tree), ds.N_COLUMNS))
         rows[:, ds.COORDS : ds.COORDS + 9] = master.coords_rm
@@ -351,6 +375,7 @@ class TreeViews:
         rows[:, ds.COUNT] = np.where(bounds.leaf, 0, bounds.child_count)
         rows[:, ds.FACE] = self._tree.face
         rows[:, ds.EXTENT] = self.geometry.extent
+        rows[:, db.BOX : db.BOX + db.N_BOX] = self.distance_boxes
         rows.flags.writeable = False
         return rows
 

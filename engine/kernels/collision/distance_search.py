@@ -1,43 +1,51 @@
 """Minimum distance between two posed meshes: one best-first branch and bound over their
 surrogate trees, in one call (the kernel of :func:`engine.collision.proximity.mesh_distance`).
 
-The query runs in body A's frame: B's sphere centres are moved by the relative pose
-``pose_a⁻¹ ∘ pose_b`` as they are read, and B's triangles when their exact distance is
-evaluated, with the arithmetic of :func:`~engine.kernels.collision.rigid.move_kernel`
-(the contact search's mover: the exact kernel sees the same bits as there).
+The query runs in body A's frame: B's node data are moved by the relative pose
+``pose_a⁻¹ ∘ pose_b`` as they are read, B's triangles with the arithmetic of
+:func:`~engine.kernels.collision.rigid.move_kernel` (the contact search's mover: the exact
+kernel sees the same bits as there).
 
 **Lower bounds** of a node pair (a, b), each below the distance of every pair of faces
 they cover (g = surrogate ε − leaf ε, 0 for a leaf; every point of a covered face lies
-within g of the node's triangle, see :mod:`engine.collision.proximity`), cheapest first:
+within g of the node's triangle, see :mod:`engine.collision.proximity`):
 
-1. spheres: ``|c_a − c_b| − r_a − r_b`` (bounding spheres of the covered faces);
-2. projection: the gap between the two node triangles projected on the axis through the
-   two centres, less ``g_a + g_b`` (a separating axis: 6 dot products);
-3. surrogates: the exact distance of the two node triangles less ``g_a + g_b``
-   (:func:`~engine.kernels.geometry.triangle_batch.exact_paired`, vectorised over the
-   children of a pair, in the query precision).
+1. spheres: ``|c_a − c_b| − r_a − r_b`` (bounding spheres of the covered faces; a pair
+   is dropped on squared distances, without a square root);
+2. boxes: the gap of the two nodes' oriented boxes on their 6 axes and the axis through
+   their centres (:func:`~engine.kernels.collision.distance_bounds.box_gap`);
+3. triangles: the exact distance of the two node triangles less ``g_a + g_b``
+   (:func:`~engine.kernels.geometry.triangle_batch.exact_paired`, vectorised over up to
+   a block of pairs, in the query precision); for a leaf pair, its exact distance.
+
+Bounds 1 and 2 are cheap (a few dozen flops); 3 is an exact triangle distance, so it is
+computed lazily: only for pairs that reach the top of the heap, a block at a time.
 
 **Search.** A greedy descent (the child with the smallest sphere bound, down to a leaf
-pair) gives a first upper bound: the best distance. A binary heap holds node pairs with
-a surrogate, keyed on their lower bound clamped at 0; ties pop the most recently pushed
-first, so that while bounds are ≤ 0 the search runs depth first, nearest child first,
-towards a crossing pair. The top pair is popped; if its bound, less the rounding margin,
-exceeds the best distance the search ends (every other bound is at least as large).
-Else the pair is unfolded: its node with the larger sphere (never a leaf) is replaced by
-its children, and when the pair's bound is positive (best first: nothing to gain from
-going deep) the other node too if it is a surrogate with a sphere at least ``BOTH`` times
-as large. Up to ``POPS`` pairs with a positive bound are popped and unfolded together
-(one with a bound ≤ 0 alone: depth first), so that their child pairs get bound 3 in one
-vectorised call. When both nodes unfold, each child is first tested against the other
-node's sphere (bound 1), and only the children that pass are paired. Each child pair is
-bounded by 1, 2 and 3 in turn and dropped at the first bound that exceeds the best
-distance by more than the margin. A surviving leaf
-pair gets its exact distance and closest points
-(:func:`~engine.kernels.geometry.triangle_batch.exact_point`): a candidate; the others are
-pushed, the largest bound first. The search also ends at a candidate of distance 0 (the
-meshes touch or intersect). The unfolding rules and ``BOTH``, ``POPS`` gave the shortest
-times on the cases of ``benchmarks/peers.py`` among those tried (the larger g, the
-larger sphere; one node or both; one pair or 8 at a time).
+pair) gives a first upper bound: the best distance; when it finds no crossing pair and
+the root boxes overlap, a second descent guided by the larger of bounds 1 and 2 (it
+finds a crossing pair of overlapping bodies far more often) may lower it. A binary heap
+holds node pairs keyed on their lower bound clamped at 0, each marked *refined* once it
+has bound 3; ties pop the most recently pushed first, so that while bounds are ≤ 0 the
+search runs depth first, nearest child first, towards a crossing pair. The top pair is
+looked at; if its bound, less the rounding margin, exceeds the best distance the search
+ends (every other bound is at least as large). Else:
+
+* an unrefined leaf pair, or unrefined pair with a positive bound, is refined together
+  with the next such pairs on top (up to ``POPS``): bound 3 in one vectorised call; each
+  is pushed back with its new key, or dropped;
+* a refined leaf pair is a candidate: its exact distance and closest points
+  (:func:`~engine.kernels.geometry.triangle_batch.exact_point`);
+* any other pair (refined, or with a bound ≤ 0: the depth-first dive skips bound 3) is
+  unfolded: its child pairs get bounds 1 and 2, and those kept are pushed unrefined, the
+  largest bound first.
+
+A pair unfolds its node with the larger sphere (never a leaf), and when its bound is
+positive the other node too if it is a surrogate with a sphere at least ``BOTH`` times as
+large; when both unfold, each child is first tested against the other node's sphere.
+The search also ends at a candidate of distance 0 (the meshes touch or intersect).
+Measured on ``benchmarks/peers.py``, computing bound 3 lazily beat computing it for every
+kept child pair (the previous search) on most near and overlapping cases.
 
 A pair is dropped only when a bound exceeds the best candidate by more than ``margin``
 (:func:`~engine.kernels.collision.batch.query_margin`: 256 ulp of the pair's scale, which
@@ -52,7 +60,8 @@ Node arrays of a tree (``N`` nodes, node order, root at row 0), row-major:
   the covered faces (centre ``CENTRE:CENTRE + 3``, radius ``RADIUS``); ``GAP`` g; then
   ``FIRST`` (first child), ``COUNT`` (child count, 0 for a leaf) and ``FACE`` (the face
   of a leaf, −1 for a surrogate), integers stored exactly; ``EXTENT`` the tree's largest
-  absolute body-frame coordinate (every row; the rounding margin's scale);
+  absolute body-frame coordinate (every row; the rounding margin's scale); the node's box
+  (columns ``BOX:BOX + 15``, :mod:`~engine.kernels.collision.distance_bounds`);
 * ``prepared (N, ≥ 23)`` — A's triangles and frames (the same columns) in the query
   dtype: ``rows`` itself for float64.
 """
@@ -63,37 +72,22 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.batch import query_margin, relative_pose
+from engine.kernels.collision.distance_bounds import BOX, N_BOX, box_gap
 from engine.kernels.geometry.triangle_batch import ZERO, exact_paired, exact_point
 from engine.kernels.jit import EXACT_JIT, INLINE, JIT, sqrt
 
 # Columns of the node rows.
 COORDS, FRAMES, CENTRE, RADIUS, GAP, FIRST, COUNT, FACE, EXTENT = 0, 9, 23, 26, 27, 28, 29, 30, 31
-N_COLUMNS = 32
-# Slots of ``out_i`` (int64) and ``out_f`` (float64) written by :func:`distance_kernel`.
-OUT_FACE_A, OUT_FACE_B, OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED, OUT_LARGEST, OUT_PRUNED = range(7)
-N_OUT_I = 7
-OUT_DISTANCE, OUT_POINT_A, OUT_POINT_B = 0, 1, 4  # the distance, then two (3,) points
-N_OUT_F = 7
+N_COLUMNS = BOX + N_BOX
+# Fields of the tuple returned by :func:`distance_kernel`.
+(
+    OUT_DISTANCE, OUT_FACE_A, OUT_FACE_B, OUT_POINT_A, OUT_POINT_B,
+    OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED, OUT_LARGEST, OUT_PRUNED,
+) = range(10)  # fmt: skip
 HEAP_START = 256  # initial capacity of the heap (doubled when full)
-CHILDREN_START = 64  # initial capacity of the gathered child pairs (grown when needed)
+CHILDREN_START = 64  # initial capacity of an unfolded pair's child pairs (grown when needed)
 BOTH = 0.5  # unfold both nodes of a pair when their spheres are this close in size
-POPS = 8  # pairs unfolded together (their children's exact bounds in one vectorised call)
-
-
-@njit(**JIT)
-def _grown(array, size):
-    """A copy of ``array (n,)`` with room for ``size > n`` entries."""
-    out = np.empty(size, array.dtype)
-    out[: array.shape[0]] = array
-    return out
-
-
-@njit(**JIT)
-def _grown_rows(array, size):
-    """A copy of ``array (k, n)`` with room for ``size > n`` columns."""
-    out = np.empty((array.shape[0], size), array.dtype)
-    out[:, : array.shape[1]] = array
-    return out
+POPS = 8  # pairs refined together
 
 
 @njit(**JIT)
@@ -102,6 +96,17 @@ def _gathered(m, dtype):
     B (9, m), B's frames (14, m), distances (m,))``, C-contiguous views, ``dtype``."""
     g = np.empty((47, m), dtype)
     return g[0:9], g[9:23], g[23:32], g[32:46], g[46]
+
+
+@njit(**JIT)
+def _grown(key, ints, need):
+    """Copies of the heap's ``key (n,)`` float64 and ``ints (4, n)`` int64 with room for
+    ``2 need > n`` entries."""
+    out_key = np.empty(2 * need)
+    out_key[: key.shape[0]] = key
+    out_ints = np.empty((4, 2 * need), np.int64)
+    out_ints[:, : ints.shape[1]] = ints
+    return out_key, out_ints
 
 
 @njit(**JIT)
@@ -174,45 +179,37 @@ def _turned(r, x, y, z):
 
 
 @njit(**INLINE)
-def _axis(a, i, b, j, r, s):
-    """``(u, |u|)``: from the sphere centre of A's node ``i`` to that of B's node ``j``."""
+def _sphere(a, i, b, j, r, s):
+    """Sphere bound of the pair (i, j)."""
     cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
     cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
     cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
     ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
-    return ux, uy, uz, sqrt(ux * ux + uy * uy + uz * uz)
+    return sqrt(ux * ux + uy * uy + uz * uz) - a[i, RADIUS] - b[j, RADIUS]
 
 
 @njit(**INLINE)
-def _sphere(a, i, b, j, r, s):
-    """Sphere bound of the pair (i, j)."""
-    return _axis(a, i, b, j, r, s)[3] - a[i, RADIUS] - b[j, RADIUS]
+def _far(a, i, b, j, r, s, limit):
+    """``(far, d2)``: the sphere bound of the pair (i, j) exceeds ``limit`` (tested on
+    squares, no square root), and the squared distance of the centres."""
+    cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
+    cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
+    cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
+    ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
+    d2 = ux * ux + uy * uy + uz * uz
+    reach = limit + a[i, RADIUS] + b[j, RADIUS]
+    return reach >= 0.0 and d2 > reach * reach, d2
 
 
 @njit(**INLINE)
-def _bounds(a, i, b, j, r, s, best, margin):
-    """Sphere bound of the pair (i, j), then (unless that one drops the pair, ``bound −
-    margin > best``) the larger of it and the projection bound."""
-    ux, uy, uz, length = _axis(a, i, b, j, r, s)
-    sphere = length - a[i, RADIUS] - b[j, RADIUS]
-    if sphere - margin > best or not length > 0.0:
-        return sphere
-    ux, uy, uz = ux / length, uy / length, uz / length
-    # u in B's frame (Rᵀu) and the shift's share, so that B's body-frame rows project
-    vx = r[0] * ux + r[3] * uy + r[6] * uz
-    vy = r[1] * ux + r[4] * uy + r[7] * uz
-    vz = r[2] * ux + r[5] * uy + r[8] * uz
-    offset = s[0] * ux + s[1] * uy + s[2] * uz
-    a0 = a[i, 0] * ux + a[i, 1] * uy + a[i, 2] * uz
-    a1 = a[i, 3] * ux + a[i, 4] * uy + a[i, 5] * uz
-    a2 = a[i, 6] * ux + a[i, 7] * uy + a[i, 8] * uz
-    b0 = b[j, 0] * vx + b[j, 1] * vy + b[j, 2] * vz + offset
-    b1 = b[j, 3] * vx + b[j, 4] * vy + b[j, 5] * vz + offset
-    b2 = b[j, 6] * vx + b[j, 7] * vy + b[j, 8] * vz + offset
-    lo_a, hi_a = min(a0, min(a1, a2)), max(a0, max(a1, a2))
-    lo_b, hi_b = min(b0, min(b1, b2)), max(b0, max(b1, b2))
-    gap = max(lo_b - hi_a, lo_a - hi_b) - a[i, GAP] - b[j, GAP]
-    return max(sphere, gap)
+def _bound(a, i, b, j, r, s, best, margin):
+    """Bound 1 of the pair (i, j), then (unless that one drops the pair, ``bound − margin
+    > best``: then +inf) the larger of bounds 1 and 2."""
+    far, d2 = _far(a, i, b, j, r, s, best + margin)
+    if far:
+        return np.inf
+    sphere = sqrt(d2) - a[i, RADIUS] - b[j, RADIUS]
+    return max(sphere, box_gap(a, i, b, j, r, s))
 
 
 @njit(**INLINE)
@@ -236,13 +233,6 @@ def _gather_b(b, j, r, s, k, gb, gfb):
         gfb[3 * v, k], gfb[3 * v + 1, k], gfb[3 * v + 2, k] = x, y, z
     for c in range(9, 14):
         gfb[c, k] = b[j, FRAMES + c]
-
-
-@njit(**INLINE)
-def _copy_column(g, k0, k):
-    """``g[:, k] = g[:, k0]``."""
-    for c in range(g.shape[0]):
-        g[c, k] = g[c, k0]
 
 
 @njit(**JIT)
@@ -270,176 +260,194 @@ def _unfolded(a, i, b, j, apart):
     return first_a, count_a, first_b, count_b
 
 
-@njit(**JIT)
-def distance_kernel(
-    prepared_a, a, b, position_a, orientation_a, position_b, orientation_b, ulp, one, out_i, out_f
-):
-    """Minimum distance between body A (node rows ``a``, its triangles in the query dtype
-    ``prepared_a``; see the module docstring) at ``position_a (3,)``, ``orientation_a
-    (4,)`` (unit quaternion w, x, y, z) and body B (``b``) at ``position_b``,
-    ``orientation_b``; ``ulp`` (float), ``one`` (1 in the query dtype): machine epsilon
-    and unit of the query dtype.
+@njit(**INLINE)
+def _to_world(ra, position, p):
+    """``R_a p + p_a`` (a body-frame point of A to the world frame) as three floats."""
+    return (
+        ra[0, 0] * p[0] + ra[0, 1] * p[1] + ra[0, 2] * p[2] + position[0],
+        ra[1, 0] * p[0] + ra[1, 1] * p[1] + ra[1, 2] * p[2] + position[1],
+        ra[2, 0] * p[0] + ra[2, 1] * p[1] + ra[2, 2] * p[2] + position[2],
+    )
 
-    Writes ``out_i (N_OUT_I,)`` int64: the faces of A and of B attaining the minimum, node
-    pairs bounded (the root's and every child pair's), exact evaluations of leaf pairs
-    (``exact_point``), pairs unfolded, the largest heap, child pairs dropped by their
-    sphere or projection bound; ``out_f (N_OUT_F,)`` float64: the distance (in the query
-    dtype), then its closest points on A and on B, world frame.
+
+@njit(**JIT)
+def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, orientation_b):
+    """Minimum distance between body A (node rows ``a``, its triangles in the query dtype
+    ``prepared_a`` (float32 or float64); see the module docstring) at ``position_a (3,)``,
+    ``orientation_a (4,)`` (unit quaternion w, x, y, z) and body B (``b``) at
+    ``position_b``, ``orientation_b`` (float64).
+
+    Returns a tuple (fields ``OUT_*``): the distance (float64, computed in the query
+    dtype), the faces of A and of B attaining it (int64), the closest points on A and on
+    B (two tuples of 3 float64, world frame), then int64 counters: node pairs bounded (the
+    root's and every child pair's), exact evaluations of leaf pairs (``exact_point``),
+    pairs unfolded, the largest heap, child pairs dropped by their sphere or box bound.
     """
+    one = np.ones(1, prepared_a.dtype)[0]
+    ulp = np.float64(np.nextafter(one, one + one) - one)  # the query dtype's epsilon
     ra, rotation, shift = relative_pose(position_a, orientation_a, position_b, orientation_b)
     margin = query_margin(a[0, EXTENT], b[0, EXTENT], shift, ulp)
     rr = rotation
     r = (rr[0, 0], rr[0, 1], rr[0, 2], rr[1, 0], rr[1, 1], rr[1, 2], rr[2, 0], rr[2, 1], rr[2, 2])
     s = (shift[0], shift[1], shift[2])
-    dtype = prepared_a.dtype
-    ga, gfa, gb, gfb, dist = _gathered(CHILDREN_START, dtype)
+    at = prepared_a.T  # A's triangles and frames as columns, for exact_point
+    a_coords, a_frames = at[COORDS : COORDS + 9], at[FRAMES : FRAMES + 14]
+    one_b = np.empty((23, 1), prepared_a.dtype)  # one B triangle moved, for exact_point
+    b_coords, b_frames = one_b[0:9], one_b[9:23]
     pairs = exact = unfolded = pruned = ZERO
 
-    # greedy descent (the larger sphere unfolds, to the child with the smallest sphere
-    # bound): a first upper bound
-    i, j = ZERO, ZERO
-    while a[i, COUNT] > 0 or b[j, COUNT] > 0:
-        split = _split_a(a[i, COUNT], a[i, RADIUS], b[j, COUNT], b[j, RADIUS])
-        first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
-        count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
-        pick, low = first, np.inf
-        for c in range(first, first + count):
-            ci, cj = (c, j) if split else (i, c)
-            bound = _sphere(a, ci, b, cj, r, s)
-            if bound < low:
-                pick, low = c, bound
-        if split:
-            i = pick
-        else:
-            j = pick
-    _gather_a(prepared_a, i, ZERO, ga, gfa)
-    _gather_b(b, j, r, s, ZERO, gb, gfb)
-    d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
-    exact += 1
-    best, best_i, best_j, best_p, best_q = np.float64(d), i, j, p, q
+    # greedy descents (the larger sphere unfolds, to the child with the smallest sphere
+    # bound; then, if that found no crossing and the root boxes overlap, to the child
+    # with the smallest box bound): a first upper bound
+    best, best_i, best_j = np.inf, ZERO, ZERO
+    best_p = best_q = (one, one, one)
+    for guide in range(2):
+        if guide == 1 and not (best > 0.0 and box_gap(a, ZERO, b, ZERO, r, s) <= 0.0):
+            break
+        i, j = ZERO, ZERO
+        while a[i, COUNT] > 0 or b[j, COUNT] > 0:
+            split = _split_a(a[i, COUNT], a[i, RADIUS], b[j, COUNT], b[j, RADIUS])
+            first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
+            count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
+            pick, low = first, np.inf
+            for c in range(first, first + count):
+                ci, cj = (c, j) if split else (i, c)
+                bound = _sphere(a, ci, b, cj, r, s)
+                if guide == 1:
+                    bound = max(bound, box_gap(a, ci, b, cj, r, s))
+                if bound < low:
+                    pick, low = c, bound
+            if split:
+                i = pick
+            else:
+                j = pick
+        _gather_b(b, j, r, s, ZERO, b_coords, b_frames)
+        d, p, q = exact_point(a_coords, a_frames, i, b_coords, b_frames, ZERO, one)
+        exact += 1
+        if d < best:
+            best, best_i, best_j, best_p, best_q = np.float64(d), i, j, p, q
 
-    # best-first search over the pairs with a surrogate
+    # best-first search
     entries = size = largest = ZERO
     pairs += 1
     search = best > 0.0 and (a[0, COUNT] > 0 or b[0, COUNT] > 0)
     room = HEAP_START if search else 1
     key = np.empty(room)
-    ints = np.empty((3, room), np.int64)
-    entry_a, entry_b, heap = ints[0], ints[1], ints[2]
+    ints = np.empty((4, room), np.int64)  # per entry: A's node, B's node, refined; the heap
+    entry_a, entry_b, refined, heap = ints[0], ints[1], ints[2], ints[3]
+    ga, gfa, gb, gfb, dist = _gathered(POPS if search else 1, prepared_a.dtype)
+    batch = np.empty(POPS, np.int64)  # the entries refined together
     room = CHILDREN_START if search else 1
-    child_low = np.empty(room)  # the gathered child pairs: bound, A's node, B's node
-    child_ab = np.empty((2, room), np.int64)
-    child_a, child_b = child_ab[0], child_ab[1]
+    child_low = np.empty(room)  # child pairs of an unfolded pair: bound, A's, B's node
+    child = np.empty((2, room), np.int64)
     keep = np.empty((2, 8 if search else 1), np.int64)  # children kept by the parent test
     if search:
-        key[0] = max(_sphere(a, ZERO, b, ZERO, r, s), 0.0)
-        entry_a[0], entry_b[0] = 0, 0
+        key[0] = max(_bound(a, ZERO, b, ZERO, r, s, np.inf, margin), 0.0)
+        entry_a[0], entry_b[0], refined[0] = 0, 0, 0
         entries = 1
         size = _push(heap, size, key, ZERO)
         largest = 1
     while size > 0 and best > 0.0:
-        # pop up to POPS pairs with a positive bound (one with a bound ≤ 0 alone: depth
-        # first; fewer when their children would overflow the buffers), bound their
-        # children with spheres and projections, gather the survivors
-        m = popped = 0
-        while size > 0 and popped < POPS:
-            e = heap[0]
-            if key[e] - margin > best or (popped > 0 and key[e] <= 0.0):
-                break
-            i, j = entry_a[e], entry_b[e]
-            first_a, count_a, first_b, count_b = _unfolded(a, i, b, j, key[e] > 0.0)
-            count = count_a * count_b
-            if m + count > child_a.shape[0]:
-                if m > 0:
-                    break
-                ga, gfa, gb, gfb, dist = _gathered(count, dtype)
-                child_low = np.empty(count)
-                child_ab = np.empty((2, count), np.int64)
-                child_a, child_b = child_ab[0], child_ab[1]
-            size = _pop(heap, size, key)
-            popped += 1
-            start = m
-            if max(count_a, count_b) > keep.shape[1]:
-                keep = np.empty((2, max(count_a, count_b)), np.int64)
-            kept_a = kept_b = 0  # both unfold: each child against the other node's sphere
-            for ci in range(first_a, first_a + count_a):
-                if count_b > 1 and _sphere(a, ci, b, j, r, s) - margin > best:
-                    pruned += count_b
-                    continue
-                keep[0, kept_a] = ci
-                kept_a += 1
-            for cj in range(first_b, first_b + count_b):
-                if count_a > 1 and _sphere(a, i, b, cj, r, s) - margin > best:
-                    pruned += kept_a
-                    continue
-                keep[1, kept_b] = cj
-                kept_b += 1
-            for ta in range(kept_a):
-                ci = keep[0, ta]
-                for tb in range(kept_b):
-                    cj = keep[1, tb]
-                    low = _bounds(a, ci, b, cj, r, s, best, margin)
-                    if low - margin > best:
-                        pruned += 1
-                        continue
-                    _gather_a(prepared_a, ci, m, ga, gfa)
-                    if count_b == 1 and m > start:  # the same B node: moved once
-                        _copy_column(gb, start, m)
-                        _copy_column(gfb, start, m)
-                    else:
-                        _gather_b(b, cj, r, s, m, gb, gfb)
-                    child_low[m], child_a[m], child_b[m] = low, ci, cj
-                    m += 1
-            pairs += count
-        if popped == 0:
+        e = heap[0]
+        if key[e] - margin > best:
             break
-        unfolded += popped
-        if m == 0:
+        i, j = entry_a[e], entry_b[e]
+        leaf = a[i, COUNT] == 0 and b[j, COUNT] == 0
+        if refined[e] == 0 and (leaf or key[e] > 0.0):
+            # bound 3 for up to POPS unrefined pairs from the top, pushed back
+            m = 0
+            while size > 0 and m < POPS:
+                e = heap[0]
+                i, j = entry_a[e], entry_b[e]
+                if key[e] - margin > best or refined[e] != 0:
+                    break
+                if key[e] <= 0.0 and (a[i, COUNT] > 0 or b[j, COUNT] > 0):
+                    break
+                size = _pop(heap, size, key)
+                _gather_a(prepared_a, i, m, ga, gfa)
+                _gather_b(b, j, r, s, m, gb, gfb)
+                batch[m] = e
+                m += 1
+            exact_paired(ga, gfa, gb, gfb, m, one, dist)
+            for k in range(m):
+                e = batch[k]
+                i, j = entry_a[e], entry_b[e]
+                low = max(key[e], np.float64(dist[k]) - a[i, GAP] - b[j, GAP])
+                if low - margin > best:
+                    continue
+                key[e], refined[e] = max(low, 0.0), 1
+                size = _push(heap, size, key, e)
             continue
-        # bound 3 on every gathered pair at once; candidates; the rest sorted, pushed
-        exact_paired(ga, gfa, gb, gfb, m, one, dist)
-        kept = 0
-        for k in range(m):
-            ci, cj = child_a[k], child_b[k]
-            low = max(child_low[k], np.float64(dist[k]) - a[ci, GAP] - b[cj, GAP])
-            if low - margin > best:
+        if leaf:  # a refined leaf pair: a candidate
+            size = _pop(heap, size, key)
+            _gather_b(b, j, r, s, ZERO, b_coords, b_frames)
+            d, p, q = exact_point(a_coords, a_frames, i, b_coords, b_frames, ZERO, one)
+            exact += 1
+            if d < best:
+                best, best_i, best_j, best_p, best_q = np.float64(d), i, j, p, q
+            continue
+        # unfold the pair; its child pairs get bounds 1 and 2 and are pushed unrefined,
+        # the largest bound first
+        size = _pop(heap, size, key)
+        unfolded += 1
+        first_a, count_a, first_b, count_b = _unfolded(a, i, b, j, key[e] > 0.0)
+        count = count_a * count_b
+        pairs += count
+        if count > child_low.shape[0]:
+            child_low = np.empty(count)
+            child = np.empty((2, count), np.int64)
+        if max(count_a, count_b) > keep.shape[1]:
+            keep = np.empty((2, max(count_a, count_b)), np.int64)
+        kept_a = kept_b = 0  # both unfold: each child against the other node's sphere
+        for ci in range(first_a, first_a + count_a):
+            if count_b > 1 and _far(a, ci, b, j, r, s, best + margin)[0]:
+                pruned += count_b
                 continue
-            if a[ci, COUNT] == 0 and b[cj, COUNT] == 0:  # a leaf pair: a candidate
-                d, p, q = exact_point(ga, gfa, k, gb, gfb, k, one)
-                exact += 1
-                if d < best:
-                    best, best_i, best_j, best_p, best_q = np.float64(d), ci, cj, p, q
+            keep[0, kept_a] = ci
+            kept_a += 1
+        for cj in range(first_b, first_b + count_b):
+            if count_a > 1 and _far(a, i, b, cj, r, s, best + margin)[0]:
+                pruned += kept_a
                 continue
-            t = kept  # insertion, the largest bound first (ties pop the last pushed first)
-            while t > 0 and child_low[t - 1] < low:
-                child_low[t], child_a[t], child_b[t] = (
-                    child_low[t - 1],
-                    child_a[t - 1],
-                    child_b[t - 1],
-                )
-                t -= 1
-            child_low[t], child_a[t], child_b[t] = low, ci, cj
-            kept += 1
+            keep[1, kept_b] = cj
+            kept_b += 1
+        kept = 0  # the survivors, sorted by bound, the largest first
+        for ta in range(kept_a):
+            ci = keep[0, ta]
+            for tb in range(kept_b):
+                cj = keep[1, tb]
+                low = _bound(a, ci, b, cj, r, s, best, margin)
+                if low - margin > best:
+                    pruned += 1
+                    continue
+                t = kept
+                while t > 0 and child_low[t - 1] < low:
+                    child_low[t] = child_low[t - 1]
+                    child[0, t], child[1, t] = child[0, t - 1], child[1, t - 1]
+                    t -= 1
+                child_low[t], child[0, t], child[1, t] = low, ci, cj
+                kept += 1
         if entries + kept > key.shape[0]:
-            key, ints = _grown(key, 2 * (entries + kept)), _grown_rows(ints, 2 * (entries + kept))
-            entry_a, entry_b, heap = ints[0], ints[1], ints[2]
+            key, ints = _grown(key, ints, entries + kept)
+            entry_a, entry_b, refined, heap = ints[0], ints[1], ints[2], ints[3]
         for t in range(kept):
-            if child_low[t] - margin > best:  # the best distance may have dropped since
-                continue
             key[entries] = max(child_low[t], 0.0)
-            entry_a[entries], entry_b[entries] = child_a[t], child_b[t]
+            entry_a[entries], entry_b[entries], refined[entries] = child[0, t], child[1, t], 0
             size = _push(heap, size, key, entries)
             entries += 1
         largest = max(largest, size)
 
-    out_i[OUT_FACE_A], out_i[OUT_FACE_B] = np.int64(a[best_i, FACE]), np.int64(b[best_j, FACE])
-    out_i[OUT_PAIRS], out_i[OUT_EXACT], out_i[OUT_UNFOLDED] = pairs, exact, unfolded
-    out_i[OUT_LARGEST], out_i[OUT_PRUNED] = largest, pruned
-    out_f[OUT_DISTANCE] = best
     pa = np.float64(best_p[0]), np.float64(best_p[1]), np.float64(best_p[2])
     pb = np.float64(best_q[0]), np.float64(best_q[1]), np.float64(best_q[2])
-    for c in range(3):  # closest points to the world frame: x ↦ R_a x + p_a
-        out_f[OUT_POINT_A + c] = ra[c, 0] * pa[0] + ra[c, 1] * pa[1] + ra[c, 2] * pa[2]
-        out_f[OUT_POINT_A + c] += position_a[c]
-        out_f[OUT_POINT_B + c] = ra[c, 0] * pb[0] + ra[c, 1] * pb[1] + ra[c, 2] * pb[2]
-        out_f[OUT_POINT_B + c] += position_a[c]
+    return (
+        best,
+        np.int64(a[best_i, FACE]),
+        np.int64(b[best_j, FACE]),
+        _to_world(ra, position_a, pa),
+        _to_world(ra, position_a, pb),
+        pairs,
+        exact,
+        unfolded,
+        largest,
+        pruned,
+    )

@@ -30,6 +30,8 @@ from engine import (
 )
 from engine.geometry.distance import TriangleSet
 from engine.geometry.mesh import Mesh
+from engine.kernels.collision import distance_bounds as db
+from engine.kernels.collision import distance_search as ds
 from engine.kernels.collision.batch import relative_pose
 from engine.kernels.collision.rigid import move_kernel
 
@@ -275,3 +277,93 @@ def test_bad_arguments():
         mesh_distance(tree, pose, tree, (np.zeros(3), [1, 0, 0, 0]))
     with pytest.raises(InvalidArgumentError, match="precision"):
         mesh_distance(tree, pose, tree, pose, precision="float16")
+
+
+def covered_faces(tree) -> list[np.ndarray]:
+    """Per node, the (sorted) faces of the leaves below it."""
+    covered: list[list[int]] = [[] for _ in range(len(tree))]
+    for leaf in np.flatnonzero(tree.face >= 0):
+        node = leaf
+        while node >= 0:
+            covered[node].append(int(tree.face[leaf]))
+            node = tree.parent[node]
+    return [np.array(sorted(c)) for c in covered]
+
+
+@pytest.mark.parametrize("pair", PAIRS)
+def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
+    """On random poses (overlapping to apart, and moved to touching), for random node pairs
+    and every leaf pair's ancestors: the box bound, the sphere bound, and the node
+    triangles' exact distance less g never exceed the least exact distance between a face
+    covered by A's node and one covered by B's (up to rounding)."""
+    name_a, name_b = pair
+    tree_a, tree_b = body(name_a)[1], body(name_b)[1]
+    rows_a, rows_b = tree_a.views.distance_rows, tree_b.views.distance_rows
+    cover_a, cover_b = covered_faces(tree_a), covered_faces(tree_b)
+    rng = np.random.default_rng(15)
+    radii = tree_a.bounding_radius + tree_b.bounding_radius
+    for pose in range(6):
+        q = rng.normal(size=(2, 4))
+        pose_a = Pose(rng.normal(size=3), q[0] / np.linalg.norm(q[0]))
+        offset = rng.normal(size=3)
+        offset *= rng.uniform(0.0, 1.5) * radii / np.linalg.norm(offset)
+        pose_b = Pose(pose_a.position + offset, q[1] / np.linalg.norm(q[1]))
+        every, pa, pb = oracle(name_a, pose_a, name_b, pose_b)
+        if pose % 2:  # touching: B moved by the closest-point offset
+            k = np.unravel_index(np.argmin(every), every.shape)
+            pose_b = Pose(pose_b.position - (pb[k] - pa[k]), pose_b.orientation)
+            every = oracle(name_a, pose_a, name_b, pose_b)[0]
+        _, rotation, shift = relative_pose(
+            pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
+        )
+        r, s = tuple(rotation.ravel()), tuple(shift)
+        tol = 1e-12 * scale(name_a, pose_a, name_b, pose_b)
+        nodes = zip(
+            rng.integers(0, len(tree_a), 300), rng.integers(0, len(tree_b), 300), strict=True
+        )
+        for i, j in nodes:
+            true = every[np.ix_(cover_a[i], cover_b[j])].min()
+            box = db.box_gap(rows_a, i, rows_b, j, r, s)
+            assert box <= true + tol, (pose, i, j, box, true)
+            centre_b = rotation @ rows_b[j, ds.CENTRE : ds.CENTRE + 3] + shift
+            sphere = np.linalg.norm(centre_b - rows_a[i, ds.CENTRE : ds.CENTRE + 3])
+            sphere -= rows_a[i, ds.RADIUS] + rows_b[j, ds.RADIUS]
+            assert sphere <= true + tol, (pose, i, j, sphere, true)
+        for i, j in nodes_near(every, tree_a, tree_b):
+            true = every[np.ix_(cover_a[i], cover_b[j])].min()
+            assert db.box_gap(rows_a, i, rows_b, j, r, s) <= true + tol, (pose, i, j)
+            tri = pose_a.apply(tree_a.triangles[i])[None], pose_b.apply(tree_b.triangles[j])[None]
+            node_d = triangle_distances(*tri, kernel="exact").distance[0]
+            gap = rows_a[i, ds.GAP] + rows_b[j, ds.GAP]
+            assert node_d - gap <= true + tol, (pose, i, j, node_d - gap, true)
+
+
+def nodes_near(every: np.ndarray, tree_a, tree_b) -> list[tuple[int, int]]:
+    """Every pair of ancestors (leaves included) of the leaves of a closest face pair."""
+    fa, fb = np.unravel_index(np.argmin(every), every.shape)
+    chain = []
+    for tree, f in ((tree_a, fa), (tree_b, fb)):
+        node, nodes = int(tree.views.geometry.face_nodes[f]), []
+        while node >= 0:
+            nodes.append(node)
+            node = int(tree.parent[node])
+        chain.append(nodes)
+    return [(i, j) for i in chain[0] for j in chain[1]]
+
+
+@pytest.mark.parametrize("name", sorted(MESHES))
+def test_node_boxes_hold_their_covered_vertices(name):
+    """Unit, orthogonal axes; every vertex of every covered face within the box (up to
+    rounding)."""
+    mesh, tree = body(name)
+    boxes = tree.views.distance_boxes
+    axes = boxes[:, 3:12].reshape(-1, 3, 3)
+    np.testing.assert_allclose(
+        axes @ np.swapaxes(axes, 1, 2), np.broadcast_to(np.eye(3), axes.shape), atol=1e-12
+    )
+    tol = 1e-12 * float(np.abs(mesh.vertices).max())
+    faces = mesh.vertices[mesh.faces]
+    for node, cover in enumerate(covered_faces(tree)):
+        points = faces[cover].reshape(-1, 3) - boxes[node, 0:3]
+        along = np.abs(points @ axes[node].T)
+        assert (along <= boxes[node, 12:15] + tol).all(), node

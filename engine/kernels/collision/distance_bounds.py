@@ -1,0 +1,124 @@
+"""Oriented boxes of surrogate-tree nodes and their distance bound (the node bound of
+:func:`~engine.kernels.collision.distance_search.distance_kernel`).
+
+A node's box holds every vertex of every face it covers: axes are the eigenvectors of
+the covered vertices' second moments about the node's sphere centre (principal axes,
+computed on the host from :func:`box_moments`), extents the range of the vertices along
+each axis (:func:`box_extents`). A triangle is the convex hull of its vertices, so the
+box holds the covered faces. Projected on any unit axis ``u``, box A spans
+``u·c_A ± Σ_k h_k |u·a_k|`` (centre ``c``, unit axes ``a_k``, half-extents ``h_k``), so the
+gap of the two spans is a lower bound on the distance of any point of A's faces to any
+of B's; :func:`box_gap` takes the largest gap over the 6 box axes and the axis through
+the two centres.
+
+Node rows (``(N, ≥ BOX + 15)`` float64, the distance search's row layout): columns
+``BOX:BOX + 3`` centre, ``BOX + 3:BOX + 12`` the three axes (row-major, axis k at
+``BOX + 3 + 3k``), ``BOX + 12:BOX + 15`` half-extents, body frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from engine.kernels.jit import INLINE, JIT, sqrt
+
+BOX = 32  # first box column of the node rows
+AXES, HALF = BOX + 3, BOX + 12
+N_BOX = 15
+
+
+@njit(**JIT)
+def box_moments(triangles, face, parent, centre, second):
+    """Add to ``second (N, 3, 3)`` float64, for every node, ``Σ (x − c)(x − c)ᵀ`` over the
+    vertices ``x`` of its covered faces (``c = centre[node] (N, 3)``).
+
+    ``triangles (N, 3, 3)`` float64 node triangles, ``face (N,)`` int64 (−1 for
+    surrogates), ``parent (N,)`` int64 (−1 for the root)."""
+    for leaf in range(face.shape[0]):
+        if face[leaf] < 0:
+            continue
+        node = leaf
+        while node >= 0:
+            for v in range(3):
+                d0 = triangles[leaf, v, 0] - centre[node, 0]
+                d1 = triangles[leaf, v, 1] - centre[node, 1]
+                d2 = triangles[leaf, v, 2] - centre[node, 2]
+                second[node, 0, 0] += d0 * d0
+                second[node, 0, 1] += d0 * d1
+                second[node, 0, 2] += d0 * d2
+                second[node, 1, 1] += d1 * d1
+                second[node, 1, 2] += d1 * d2
+                second[node, 2, 2] += d2 * d2
+            node = parent[node]
+    for node in range(face.shape[0]):
+        second[node, 1, 0] = second[node, 0, 1]
+        second[node, 2, 0] = second[node, 0, 2]
+        second[node, 2, 1] = second[node, 1, 2]
+
+
+@njit(**JIT)
+def box_extents(triangles, face, parent, axes, low, high):
+    """``low, high (N, 3)`` float64 (filled with +inf, −inf by the caller): per node, the
+    least and largest ``axes[node, k] · x`` over the vertices ``x`` of its covered faces
+    (``axes (N, 3, 3)``, axis k in row k; other arguments as :func:`box_moments`)."""
+    for leaf in range(face.shape[0]):
+        if face[leaf] < 0:
+            continue
+        node = leaf
+        while node >= 0:
+            for v in range(3):
+                x, y, z = triangles[leaf, v, 0], triangles[leaf, v, 1], triangles[leaf, v, 2]
+                for k in range(3):
+                    p = axes[node, k, 0] * x + axes[node, k, 1] * y + axes[node, k, 2] * z
+                    low[node, k] = min(low[node, k], p)
+                    high[node, k] = max(high[node, k], p)
+            node = parent[node]
+
+
+@njit(**INLINE)
+def _turn(r, x, y, z):
+    return (
+        r[0] * x + r[1] * y + r[2] * z,
+        r[3] * x + r[4] * y + r[5] * z,
+        r[6] * x + r[7] * y + r[8] * z,
+    )
+
+
+@njit(**INLINE)
+def _dot(p, q):
+    return p[0] * q[0] + p[1] * q[1] + p[2] * q[2]
+
+
+@njit(**INLINE)
+def box_gap(a, i, b, j, r, s):
+    """Lower bound on the distance between the faces covered by A's node ``i`` (rows
+    ``a``) and B's node ``j`` (rows ``b``, moved by ``x ↦ R x + s``, ``r`` the 9 entries of
+    R row by row, ``s`` 3): the largest gap of the two boxes projected on A's 3 axes, B's 3
+    axes and the axis through the centres (−inf for that one when the centres coincide)."""
+    cx, cy, cz = _turn(r, b[j, BOX], b[j, BOX + 1], b[j, BOX + 2])
+    d = (cx + s[0] - a[i, BOX], cy + s[1] - a[i, BOX + 1], cz + s[2] - a[i, BOX + 2])
+    ha = (a[i, HALF], a[i, HALF + 1], a[i, HALF + 2])
+    hb = (b[j, HALF], b[j, HALF + 1], b[j, HALF + 2])
+    p = (a[i, AXES], a[i, AXES + 1], a[i, AXES + 2])
+    q = (a[i, AXES + 3], a[i, AXES + 4], a[i, AXES + 5])
+    w = (a[i, AXES + 6], a[i, AXES + 7], a[i, AXES + 8])
+    u = _turn(r, b[j, AXES], b[j, AXES + 1], b[j, AXES + 2])
+    v = _turn(r, b[j, AXES + 3], b[j, AXES + 4], b[j, AXES + 5])
+    t = _turn(r, b[j, AXES + 6], b[j, AXES + 7], b[j, AXES + 8])
+    c00, c01, c02 = abs(_dot(p, u)), abs(_dot(p, v)), abs(_dot(p, t))
+    c10, c11, c12 = abs(_dot(q, u)), abs(_dot(q, v)), abs(_dot(q, t))
+    c20, c21, c22 = abs(_dot(w, u)), abs(_dot(w, v)), abs(_dot(w, t))
+    da0, da1, da2 = abs(_dot(p, d)), abs(_dot(q, d)), abs(_dot(w, d))
+    db0, db1, db2 = abs(_dot(u, d)), abs(_dot(v, d)), abs(_dot(t, d))
+    gap = da0 - ha[0] - (hb[0] * c00 + hb[1] * c01 + hb[2] * c02)
+    gap = max(gap, da1 - ha[1] - (hb[0] * c10 + hb[1] * c11 + hb[2] * c12))
+    gap = max(gap, da2 - ha[2] - (hb[0] * c20 + hb[1] * c21 + hb[2] * c22))
+    gap = max(gap, db0 - hb[0] - (ha[0] * c00 + ha[1] * c10 + ha[2] * c20))
+    gap = max(gap, db1 - hb[1] - (ha[0] * c01 + ha[1] * c11 + ha[2] * c21))
+    gap = max(gap, db2 - hb[2] - (ha[0] * c02 + ha[1] * c12 + ha[2] * c22))
+    length2 = _dot(d, d)
+    spread = ha[0] * da0 + ha[1] * da1 + ha[2] * da2 + hb[0] * db0 + hb[1] * db1 + hb[2] * db2
+    length = sqrt(length2)
+    centres = (length2 - spread) / length if length > 0.0 else -np.inf
+    return max(gap, centres)
