@@ -208,6 +208,42 @@ class TreeViews:
         return out
 
     @cached_property
+    def _box_ranges(self) -> tuple[np.ndarray, ...]:
+        """Each node's covered leaf vertices measured two ways: ``axes (N, 3, 3)`` the
+        principal axes (rows, unit: eigenvectors of the vertices' second moments about the
+        node's sphere centre), ``lo, hi (N, 3)`` the vertices' range along them, and
+        ``low, high (N, 3)`` their range along the body axes; float64
+        (:func:`~engine.kernels.collision.distance_bounds.box_moments`, ``box_extents``)."""
+        tree = self._tree
+        n = len(tree)
+        triangles = np.ascontiguousarray(tree.triangles, dtype=np.float64)
+        face, parent = tree.face.astype(np.int64), tree.parent.astype(np.int64)
+        second = np.zeros((n, 3, 3))
+        db.box_moments(triangles, face, parent, np.ascontiguousarray(self.spheres[:, :3]), second)
+        axes = np.ascontiguousarray(np.swapaxes(np.linalg.eigh(second)[1], 1, 2))  # rows
+        ranges = []
+        for frame in (axes, np.ascontiguousarray(np.broadcast_to(np.eye(3), (n, 3, 3)))):
+            low, high = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+            db.box_extents(triangles, face, parent, frame, low, high)
+            ranges += [low, high]
+        return (axes, *ranges)
+
+    def _grown_boxes(self, grow: float) -> np.ndarray:
+        """(N, 15) float64 box of each node's covered vertices grown by ``grow`` plus a
+        few ulp of the tree's extent (the layout of :attr:`boxes`): along the principal
+        axes, or the body axes where that box is smaller."""
+        axes, lo, hi, low, high = self._box_ranges
+        grow = grow + 16.0 * np.finfo(float).eps * max(self.geometry.extent, 1e-300)
+        principal = np.prod(hi - lo + 2 * grow, axis=1) < np.prod(high - low + 2 * grow, axis=1)
+        out = np.empty((len(self._tree), 15))
+        out[:, :3] = np.where(
+            principal[:, None], np.einsum("nk,nki->ni", (lo + hi) / 2, axes), (low + high) / 2
+        )
+        out[:, 3:12] = np.where(principal[:, None], axes.reshape(-1, 9), np.eye(3).ravel())
+        out[:, 12:] = np.where(principal[:, None], (hi - lo) / 2, (high - low) / 2) + grow
+        return out  # writable, as the kernels take it (see TreeStructure); never written
+
+    @cached_property
     def boxes(self) -> np.ndarray:
         """(N, 15) float64 oriented bounding box of each node's covered leaves' ε-regions,
         body frame, as :mod:`~engine.kernels.collision.boxes` reads it: centre (columns
@@ -217,42 +253,7 @@ class TreeViews:
         the farthest covered vertex along each axis, plus the leaf ε and a few ulp of the
         tree's extent (a box grown by ε holds the ε-ball of each point it holds). So every
         point a node's :attr:`spheres` row must hold lies in its box."""
-        tree = self._tree
-        n, leaf_nodes = len(tree), np.flatnonzero(tree.face >= 0)
-        verts = tree.triangles[leaf_nodes]  # (L, 3, 3) the covered points' hull vertices
-        # first and second moments of each node's covered vertices, children before parents
-        moments = np.zeros((n, 13))
-        moments[leaf_nodes, 0] = 3.0
-        moments[leaf_nodes, 1:4] = verts.sum(1)
-        moments[leaf_nodes, 4:] = np.einsum("lvi,lvj->lij", verts, verts).reshape(-1, 9)
-        low, high = np.empty((n, 3)), np.empty((n, 3))
-        low[leaf_nodes], high[leaf_nodes] = verts.min(1), verts.max(1)
-        for node in np.flatnonzero(tree.face < 0)[::-1]:  # BFS order: children after parents
-            kids = slice(tree.first_child[node], tree.first_child[node] + tree.child_count[node])
-            moments[node] = moments[kids].sum(0)
-            low[node], high[node] = low[kids].min(0), high[kids].max(0)
-        mean = moments[:, 1:4] / moments[:, :1]
-        covariance = moments[:, 4:].reshape(-1, 3, 3) / moments[:, :1, None]
-        covariance -= mean[:, :, None] * mean[:, None, :]
-        axes = np.linalg.eigh(covariance)[1].transpose(0, 2, 1).copy()  # rows: unit axes
-        # each node's covered vertices projected on its axes: every leaf up its ancestors
-        lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
-        node = leaf_nodes
-        while len(node):
-            along = np.einsum("lvi,lki->lvk", verts, axes[node])
-            np.minimum.at(lo, node, along.min(1))
-            np.maximum.at(hi, node, along.max(1))
-            keep = tree.parent[node] >= 0
-            node, verts = tree.parent[node][keep], verts[keep]
-        grow = tree.leaf_epsilon + 16.0 * np.finfo(float).eps * max(self.geometry.extent, 1e-300)
-        principal = np.prod(hi - lo + 2 * grow, axis=1) < np.prod(high - low + 2 * grow, axis=1)
-        out = np.empty((n, 15))
-        out[:, :3] = np.where(
-            principal[:, None], np.einsum("nk,nki->ni", (lo + hi) / 2, axes), (low + high) / 2
-        )
-        out[:, 3:12] = np.where(principal[:, None], axes.reshape(-1, 9), np.eye(3).ravel())
-        out[:, 12:] = np.where(principal[:, None], (hi - lo) / 2, (high - low) / 2) + grow
-        return out  # writable, as the kernels take it (see TreeStructure); never written
+        return self._grown_boxes(self._tree.leaf_epsilon)
 
     @cached_property
     def bounds_table(self) -> np.ndarray:
@@ -338,24 +339,10 @@ class TreeViews:
     @cached_property
     def distance_boxes(self) -> np.ndarray:
         """``(N, 15)`` float64 oriented box of each node's covered faces, body frame
-        (the layout of :mod:`~engine.kernels.collision.distance_bounds`: centre, three
-        unit axes row by row, half-extents): axes the principal axes of the covered
-        vertices (eigenvectors of their second moments about the node's sphere centre),
-        extents their range along each axis, so the box holds every covered face."""
-        tree = self._tree
-        n = len(tree)
-        triangles = np.ascontiguousarray(tree.triangles, dtype=np.float64)
-        face, parent = tree.face.astype(np.int64), tree.parent.astype(np.int64)
-        second = np.zeros((n, 3, 3))
-        db.box_moments(triangles, face, parent, np.ascontiguousarray(self.spheres[:, :3]), second)
-        axes = np.ascontiguousarray(np.swapaxes(np.linalg.eigh(second)[1], 1, 2))  # rows
-        low, high = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
-        db.box_extents(triangles, face, parent, axes, low, high)
-        out = np.empty((n, db.N_BOX))
-        out[:, 0:3] = np.einsum("nk,nkj->nj", (low + high) / 2, axes)
-        out[:, 3:12] = axes.reshape(n, 9)
-        out[:, 12:15] = (high - low) / 2
-        return out
+        (the layout of :attr:`boxes`, which :mod:`~engine.kernels.collision.distance_bounds`
+        reads too): the box of the covered vertices without the leaf ε (a few ulp of the
+        extent only), so it holds every covered face."""
+        return self._grown_boxes(0.0)
 
     @cached_property
     def distance_rows(self) -> np.ndarray:

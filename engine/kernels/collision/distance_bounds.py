@@ -1,11 +1,13 @@
 """Oriented boxes of surrogate-tree nodes and their distance bound (the node bound of
 :func:`~engine.kernels.collision.distance_search.distance_kernel`).
 
-A node's box holds every vertex of every face it covers: axes are the eigenvectors of
-the covered vertices' second moments about the node's sphere centre (principal axes,
-computed on the host from :func:`box_moments`), extents the range of the vertices along
-each axis (:func:`box_extents`). A triangle is the convex hull of its vertices, so the
-box holds the covered faces. Projected on any unit axis ``u``, box A spans
+A node's box (:attr:`~engine.trees.views.TreeViews.distance_boxes`; the contact search's
+:attr:`~engine.trees.views.TreeViews.boxes` are the same boxes grown by the leaf ε) holds
+every vertex of every face it covers: axes are the eigenvectors of the covered vertices'
+second moments about the node's sphere centre (principal axes, computed on the host from
+:func:`box_moments`) or the body axes, whichever box is smaller, extents the range of the
+vertices along each axis (:func:`box_extents`). A triangle is the convex hull of its
+vertices, so the box holds the covered faces. Projected on any unit axis ``u``, box A spans
 ``u·c_A ± Σ_k h_k |u·a_k|`` (centre ``c``, unit axes ``a_k``, half-extents ``h_k``), so the
 gap of the two spans is a lower bound on the distance of any point of A's faces to any
 of B's; :func:`box_gap` takes the largest gap over the 6 box axes and the axis through
