@@ -20,8 +20,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.contact_merge import contact_kernel
-from engine.kernels.collision.pair_lists import listed_contacts
-from engine.kernels.collision.sphere_lists import first_listing, sphere_workspace
+from engine.kernels.collision.pair_lists import listed_contacts, reference_distances
 from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.geometry.triangle_batch import (
@@ -166,10 +165,8 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     entry ``slot[q]`` (−1: none) instead of a traversal while B's points have moved by
     less than s relative to A since its reference pose (:func:`motion_bound`, plus the
     query's margin), evaluating only the listed pairs that may be in contact now
-    (:func:`listed_contacts`); else it makes a new list from bounding spheres and exact
-    distances, and takes the contacts from it as a later evaluation would
-    (:func:`~engine.kernels.collision.sphere_lists.first_listing`). Without a skin each
-    query traverses its trees (:func:`query_kernel`).
+    (:func:`listed_contacts`); else it traverses with every ε grown by s/2 and starts a
+    new list (:func:`reference_distances`).
 
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
     int64 (pairs evaluated per level). In the result, query ``start + t`` owns rows
@@ -193,7 +190,6 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     local = np.full(max(1, int(trees.node_count.max())), -1, np.int64)  # listed_contacts'
     buffers = listed_workspace(bank.coords)
     found = result_buffers(256, bank.coords)
-    spheres = sphere_workspace(local.shape[0])
     for t in range(k):
         q = start + t
         ta, tb = queries.tree_a[q], queries.tree_b[q]
@@ -219,40 +215,21 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             drift = motion_bound(lists.rotations[e], lists.shifts[e], rotation, shift, extent_b)
         listed = skin > 0.0 and e >= 0 and drift + margin < reach
         p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
-        depth, unfoldings, n1 = 0, 0, n0  # a kept list stays put
-        if skin > 0.0:
-            if listed:
-                l0, l1 = lists.offsets[e], lists.offsets[e + 1]
-                found, n, face_b = listed_contacts(
-                    bank,
-                    (a0, a1, b0),
-                    (rotation, shift),
-                    lists.near[l0:l1],
-                    lists.distances[l0:l1],
-                    drift + 2.0 * margin,
-                    params.leaf,
-                    (local, buffers, found),
-                    stats,
-                )
-                rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
-            else:  # a new list, from bounding spheres and exact distances
-                near, distances, found, n, face_b, spheres = first_listing(
-                    bank,
-                    (a0, a1, b0, b1),
-                    (rotation, shift),
-                    margin,
-                    reach,
-                    params.leaf,
-                    q,
-                    (local, buffers, found, spheres),
-                    stats,
-                )
-                rotations[t], shifts[t] = rotation, shift
-                n1 = n0 + near.shape[0]
-                near_out = _grow(near_out, n0, n1)
-                near_distances = _grow(near_distances, n0, n1)
-                near_out[n0:n1] = near
-                near_distances[n0:n1] = distances
+        if listed:
+            l0, l1 = lists.offsets[e], lists.offsets[e + 1]
+            found, n, face_b = listed_contacts(
+                bank,
+                (a0, a1, b0),
+                (rotation, shift),
+                lists.near[l0:l1],
+                lists.distances[l0:l1],
+                drift + 2.0 * margin,
+                params.leaf,
+                (local, buffers, found),
+                stats,
+            )
+            depth, unfoldings, n1 = 0, 0, n0  # a kept list stays put
+            rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
             pairs = _grow(pairs, p0, p0 + n)
             points, normals_out, overlaps = (
                 _grow(points, c0, c0 + n),
@@ -284,12 +261,13 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 bank.child_count[b0:b1],
                 bank.spheres[b0:b1],
             )
+            inflate = 0.5 * reach if skin > 0.0 else 0.0
             depth, unfoldings, result, near = query_kernel(
                 body_a,
                 body_b,
                 (rotation, shift),
                 margin,
-                0.0,
+                inflate,
                 params.surrogate,
                 params.leaf,
                 contact,
@@ -299,6 +277,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             rotations[t], shifts[t] = rotation, shift
             found_pairs, pts, nrm, ovl = result
             p1, c1 = p0 + found_pairs.shape[0], c0 + pts.shape[0]
+            n1 = n0 + (near.shape[0] if skin > 0.0 else 0)
             pairs = _grow(pairs, p0, p1)
             points, normals_out, overlaps = (
                 _grow(points, c0, c1),
@@ -309,6 +288,19 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             points[c0:c1] = pts
             normals_out[c0:c1] = nrm
             overlaps[c0:c1] = ovl
+            if n1 > n0:
+                near_out = _grow(near_out, n0, n1)
+                near_distances = _grow(near_distances, n0, n1)
+                near_out[n0:n1] = near
+                reference_distances(
+                    bank,
+                    (a0, b0),
+                    (rotation, shift),
+                    near,
+                    params.leaf[3],
+                    (local, buffers),
+                    near_distances[n0:n1],
+                )
         pair_offsets[t + 1], contact_offsets[t + 1], near_offsets[t + 1] = p1, c1, n1
         counts[t, COUNT_DEPTH] = depth
         counts[t, COUNT_UNFOLDINGS] = unfoldings
