@@ -1,0 +1,110 @@
+"""The pair cache's new lists hold every leaf pair within ε_a + ε_b + s at the reference
+pose, each once, with its exact distance there, and nothing beyond (brute force over all
+leaf pairs, on shapes with pole fans); the contacts of a call that makes them are the
+traversal's, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine import PairCache, Pose, TreeBank, build_tree, shapes, triangle_distances
+
+SKIN = 0.5
+
+
+@pytest.fixture(scope="module")
+def trees():
+    return [
+        build_tree(shapes.noisy_sphere(subdivisions=1, eta_r=1.3, seed=2), epsilon=0.03),
+        build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
+        build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
+        build_tree(shapes.uv_sphere(16, 8, radius=0.8), epsilon=0.02),  # pole fans
+    ]
+
+
+def random_queries(trees, count, seed):
+    """``count`` (tree_a, pose_a, tree_b, pose_b), centres 0.3–1.1 bounding radii apart."""
+    rng = np.random.default_rng(seed)
+    queries = []
+    for _ in range(count):
+        a, b = (trees[i] for i in rng.integers(len(trees), size=2))
+        qa, qb, direction = rng.normal(size=4), rng.normal(size=4), rng.normal(size=3)
+        reach = (a.bounding_radius + b.bounding_radius) * rng.uniform(0.3, 1.1)
+        pa = Pose(rng.normal(size=3), qa / np.linalg.norm(qa))
+        pb = Pose(
+            pa.position + reach * direction / np.linalg.norm(direction), qb / np.linalg.norm(qb)
+        )
+        queries.append((a, pa, b, pb))
+    return queries
+
+
+def _arrays(trees, queries):
+    index = {id(t): i for i, t in enumerate(trees)}
+    return (
+        np.array([index[id(q[0])] for q in queries]),
+        np.array([q[1].position for q in queries]),
+        np.array([q[1].orientation for q in queries]),
+        np.array([index[id(q[2])] for q in queries]),
+        np.array([q[3].position for q in queries]),
+        np.array([q[3].orientation for q in queries]),
+    )
+
+
+def _all_leaf_pairs(tree_a, pose_a, tree_b, pose_b):
+    """Every (leaf row of A, leaf row of B) with its exact distance (float64), brute force."""
+    sides = []
+    for tree, pose in ((tree_a, pose_a), (tree_b, pose_b)):
+        mesh = tree.views.geometry.mesh
+        corners = mesh.vertices[mesh.faces[tree.face[tree.views.geometry.face_nodes]]]
+        sides.append(pose.apply(corners.reshape(-1, 3)).reshape(-1, 3, 3))
+    fa, fb = len(sides[0]), len(sides[1])
+    a = np.repeat(sides[0], fb, axis=0)
+    b = np.tile(sides[1], (fa, 1, 1))
+    distance = triangle_distances(a, b, kernel="exact").distance
+    rows_a = np.repeat(tree_a.views.geometry.face_nodes, fb)
+    rows_b = np.tile(tree_b.views.geometry.face_nodes, fa)
+    return rows_a, rows_b, distance
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_a_new_list_holds_every_leaf_pair_within_reach_and_skin(trees, precision):
+    bank = TreeBank(trees, precision)
+    queries = random_queries(trees, 40, seed=5)
+    cache = PairCache(skin=SKIN)
+    keys = np.arange(len(queries), dtype=np.int64)
+    got = bank.find_contacts(*_arrays(trees, queries), cache=cache, keys=keys, threads=1)
+    assert (got.counts[:, 6] == 0).all()  # every list is new
+    tolerance = 1e-9 if precision == "float64" else 1e-4
+    listed_total = 0
+    for e, (tree_a, pose_a, tree_b, pose_b) in enumerate(queries):
+        near = cache.near[cache.offsets[e] : cache.offsets[e + 1]]
+        distances = cache.distances[cache.offsets[e] : cache.offsets[e + 1]]
+        reach = (tree_a.leaf_epsilon + tree_b.leaf_epsilon) * (1.0 + SKIN)
+        rows_a, rows_b, distance = _all_leaf_pairs(tree_a, pose_a, tree_b, pose_b)
+        within = distance <= reach - tolerance
+        want = set(zip(rows_a[within].tolist(), rows_b[within].tolist(), strict=True))
+        listed = set(zip(near[:, 0].tolist(), near[:, 1].tolist(), strict=True))
+        assert len(listed) == len(near)  # no pair twice
+        assert want <= listed
+        exact = dict(zip(zip(rows_a.tolist(), rows_b.tolist(), strict=True), distance, strict=True))
+        brute = np.array(
+            [exact[pair] for pair in zip(near[:, 0].tolist(), near[:, 1].tolist(), strict=True)]
+        )
+        np.testing.assert_allclose(distances, brute, rtol=0, atol=tolerance)
+        assert (brute <= reach + tolerance).all()
+        listed_total += len(near)
+    assert listed_total > 0
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_contacts_of_a_call_that_makes_the_lists_are_the_traversals(trees, precision):
+    bank = TreeBank(trees, precision)
+    queries = random_queries(trees, 120, seed=9)
+    args = _arrays(trees, queries)
+    keys = np.arange(len(queries), dtype=np.int64) * 7
+    got = bank.find_contacts(*args, cache=PairCache(skin=SKIN), keys=keys, threads=2)
+    want = bank.find_contacts(*args, threads=2)
+    for name in ("pair_offsets", "pairs", "contact_offsets", "points", "normals", "overlaps"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    assert (np.diff(want.pair_offsets) > 0).sum() > 10
