@@ -25,7 +25,7 @@ search over a heap of node pairs keyed on their lower bound: child pairs get the
 sphere and box bounds when their parent unfolds, and the exact distance of the two node
 triangles less their g only when they reach the top of the heap (vectorised over up to 8
 pairs); leaf pairs at the top are evaluated with the exact kernel
-(:func:`~engine.kernels.geometry.triangle_batch.exact_point`, in ``precision``, on B's
+(:func:`~engine.kernels.geometry.triangle_points.exact_point`, in ``precision``, on B's
 triangles moved as the contact search moves them). It stops when the smallest bound in
 the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
 intersect). The host validates, looks up the trees' packed node rows (built once per

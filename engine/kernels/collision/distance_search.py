@@ -15,7 +15,7 @@ within g of the node's triangle, see :mod:`engine.collision.proximity`):
 2. boxes: the gap of the two nodes' oriented boxes on their 6 axes and the axis through
    their centres (:func:`~engine.kernels.collision.distance_bounds.box_gap`);
 3. triangles: the exact distance of the two node triangles less ``g_a + g_b``
-   (:func:`~engine.kernels.geometry.triangle_batch.exact_paired`, vectorised over up to
+   (:func:`~engine.kernels.geometry.triangle_points.exact_paired`, vectorised over up to
    a block of pairs, in the query precision); for a leaf pair, its exact distance.
 
 Bounds 1 and 2 are cheap (a few dozen flops); 3 is an exact triangle distance, so it is
@@ -35,7 +35,7 @@ ends (every other bound is at least as large). Else:
   with the next such pairs on top (up to ``POPS``): bound 3 in one vectorised call; each
   is pushed back with its new key, or dropped;
 * a refined leaf pair is a candidate: its exact distance and closest points
-  (:func:`~engine.kernels.geometry.triangle_batch.exact_point`);
+  (:func:`~engine.kernels.geometry.triangle_points.exact_point`);
 * any other pair (refined, or with a bound ≤ 0: the depth-first dive skips bound 3) is
   unfolded: its child pairs get bounds 1 and 2, and those kept are pushed unrefined, the
   largest bound first.
@@ -73,7 +73,8 @@ from numba import njit
 
 from engine.kernels.collision.batch import query_margin, relative_pose
 from engine.kernels.collision.distance_bounds import BOX, N_BOX, box_gap
-from engine.kernels.geometry.triangle_batch import ZERO, exact_paired, exact_point
+from engine.kernels.geometry.triangle_batch import ZERO
+from engine.kernels.geometry.triangle_points import exact_paired, exact_point
 from engine.kernels.jit import EXACT_JIT, INLINE, JIT, sqrt
 
 # Columns of the node rows.

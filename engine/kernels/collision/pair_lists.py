@@ -20,12 +20,11 @@ from engine.kernels.geometry.triangle_batch import (
     ITERATIVE,
     STAT_PAIRS,
     ZERO,
-    exact_paired,
-    exact_points,
     gather_rows,
     listed_kernel,
     result_buffers,
 )
+from engine.kernels.geometry.triangle_points import exact_paired, exact_points
 from engine.kernels.jit import JIT
 
 SURE_BLOCK = 32

@@ -114,7 +114,7 @@ def load_prepared(src, k, limit, tiny, like):
 
 @njit(**INLINE)
 def _local(a0, a1, a2, b0, b1, b2):
-    """Origin (``a0``) and both triangles in the pair-local frame, as ``triangle_batch._pair``."""
+    """Origin (``a0``) and both triangles in the pair-local frame, as ``triangle_points._pair``."""
     ox, oy, oz = a0
     return (
         (ox, oy, oz),

@@ -10,11 +10,11 @@ beyond ``limit`` (the host then reports the first one).
 
 The paired form (:func:`paired_kernel`) prepares pairs a block at a time into block
 buffers (or copies blocks of prepared sets) and evaluates them there, so nothing of size
-``n`` but the results is written. Closest points are vectorised: :func:`exact_points_paired`
-stores distance and points into seven one-dimensional rows (with one two-dimensional output
-LLVM gives up on the loop: "unsafe indirect dependence"), placed as :func:`workspace`
-says. Hybrid fallbacks are queued across
-blocks and resolved a full block at a time by the same loop. Results equal
+``n`` but the results is written. Closest points are vectorised:
+:func:`~engine.kernels.geometry.triangle_points.exact_points` stores distance and points
+into seven one-dimensional rows (with one two-dimensional output LLVM gives up on the
+loop: "unsafe indirect dependence"), placed as :func:`workspace` says. Hybrid fallbacks
+are queued across blocks and resolved a full block at a time by the same loop. Results equal
 :func:`~engine.kernels.geometry.triangle_batch.paired_kernel`'s on sets prepared from the
 same triangles, bit for bit.
 """
@@ -36,14 +36,13 @@ from engine.kernels.geometry.triangle_batch import (
     STAT_PAIRS,
     ZERO,
     _conditioning,
-    _frame,
-    _pair,
     copy_columns,
     iterate_paired,
 )
-from engine.kernels.geometry.triangle_exact import exact_pair, triangle_frame
+from engine.kernels.geometry.triangle_exact import triangle_frame
 from engine.kernels.geometry.triangle_iterative import classify
-from engine.kernels.jit import JIT, select, sqrt
+from engine.kernels.geometry.triangle_points import exact_points
+from engine.kernels.jit import JIT, select
 
 
 @njit(**JIT)
@@ -130,25 +129,11 @@ def transpose_kernel(src, start, stop, dst):
 
 
 @njit(**JIT)
-def exact_points_paired(a, fa, b, fb, m, one, d, pax, pay, paz, pbx, pby, pbz):
-    """Exact distance ``d[t]`` and closest points ``(pax, pay, paz)[t]`` on A and
-    ``(pbx, pby, pbz)[t]`` on B (input frame) of pairs (t, t), ``0 ≤ t < m``: the values of
-    :func:`~engine.kernels.geometry.triangle_batch.exact_point`, vectorised. Outputs are
-    seven separate ``(≥m,)`` arrays of the dtype of ``a``."""
-    for t in range(m):
-        o, a0, a1, a2, b0, b1, b2 = _pair(a, t, b, t)
-        d2, p, q = exact_pair(a0, a1, a2, _frame(fa, t), b0, b1, b2, _frame(fb, t), one)
-        d[t] = sqrt(d2)
-        pax[t], pay[t], paz[t] = p[0] + o[0], p[1] + o[1], p[2] + o[2]
-        pbx[t], pby[t], pbz[t] = q[0] + o[0], q[1] + o[1], q[2] + o[2]
-
-
-@njit(**JIT)
 def workspace(like):
     """Buffers of :func:`paired_kernel`, floats of the dtype of ``like``: ``(101, BLOCK)``
     rows (0–45 a block of pairs: coords and frames of A, of B; 46–54 the iterative kernel's
     scratch; 55–100 the queue of fallback pairs), and the seven output rows of
-    :func:`exact_points_paired`.
+    :func:`~engine.kernels.geometry.triangle_points.exact_points`.
 
     The output rows lie 4 KiB plus an irregular multiple of 64 bytes apart in one
     allocation. Measured (AVX2, float32, 256 pairs): with the seven rows of a 2-D array, or
@@ -184,7 +169,7 @@ def _resolve_queue(c, one, qa, qfa, qb, qfb, qt, res, distance, lower, point_a, 
     """Exact distance and points of the ``c`` queued pairs, written to rows ``qt[k]``;
     ``res`` seven ``(BLOCK,)`` work arrays."""
     r0, r1, r2, r3, r4, r5, r6 = res
-    exact_points_paired(qa, qfa, qb, qfb, c, one, r0, r1, r2, r3, r4, r5, r6)
+    exact_points(qa, qfa, qb, qfb, c, one, r0, r1, r2, r3, r4, r5, r6)
     for k in range(c):
         t = qt[k]
         distance[t] = r0[k]
@@ -228,7 +213,7 @@ def paired_kernel(
         bad += _fetch(side_a, raw_a, coords_a, frames_a, t0, m, limit, tiny, ga, gfa)
         bad += _fetch(side_b, raw_b, coords_b, frames_b, t0, m, limit, tiny, gb, gfb)
         if mode == EXACT:
-            exact_points_paired(ga, gfa, gb, gfb, m, one, r0, r1, r2, r3, r4, r5, r6)
+            exact_points(ga, gfa, gb, gfb, m, one, r0, r1, r2, r3, r4, r5, r6)
             for k in range(m):
                 t = t0 + k
                 d = r0[k]

@@ -1,4 +1,4 @@
-"""The vectorised exact closest points (``triangle_batch.exact_points``) are the scalar
+"""The vectorised exact closest points (``triangle_points.exact_points``) are the scalar
 ``exact_point``'s, bit for bit, on near, crossing, parallel and sliver pairs."""
 
 from __future__ import annotations
@@ -9,12 +9,13 @@ from numba import njit
 
 from engine.geometry.distance import TriangleSet
 from engine.kernels.geometry import triangle_batch as tb
+from engine.kernels.geometry import triangle_points as tp
 
 
 @njit
 def _scalar(a, fa, b, fb, m, one, out):
     for t in range(m):
-        d, p, q = tb.exact_point(a, fa, t, b, fb, t, one)
+        d, p, q = tp.exact_point(a, fa, t, b, fb, t, one)
         out[0, t] = d
         out[1, t], out[2, t], out[3, t] = p
         out[4, t], out[5, t], out[6, t] = q
@@ -37,7 +38,7 @@ def test_vectorised_points_are_the_scalar_points(precision):
     sa, sb = TriangleSet(a, precision=precision), TriangleSet(b, precision=precision)
     dtype = np.dtype(precision).type
     one = dtype(1)
-    rows = tb.point_rows(sa.coords)
+    rows = tp.point_rows(sa.coords)
     for t0 in range(0, len(a), tb.BLOCK):
         m = min(tb.BLOCK, len(a) - t0)
         block = [
@@ -45,7 +46,7 @@ def test_vectorised_points_are_the_scalar_points(precision):
             for x in (sa.coords, sa.frames, sb.coords, sb.frames)
         ]
         block = [np.concatenate([x, np.zeros((x.shape[0], tb.BLOCK - m), dtype)], 1) for x in block]
-        tb.exact_points(*block, m, one, *rows)
+        tp.exact_points(*block, m, one, *rows)
         want = np.empty((7, m), dtype)
         _scalar(*block, m, one, want)
         got = np.array([r[:m] for r in rows])
