@@ -115,6 +115,7 @@ def warmup(workers: int | None = None) -> float:
     if not 1 <= workers <= len(PARTS):
         raise InvalidArgumentError(f"workers must be 1 … {len(PARTS)}, got {workers}")
     start = time.perf_counter()
+    rest = PARTS
     if workers > 1:
         context = multiprocessing.get_context("spawn")  # no forked Numba or thread state
         with ProcessPoolExecutor(workers - 1, mp_context=context) as pool:
@@ -122,6 +123,7 @@ def warmup(workers: int | None = None) -> float:
             PARTS[0]()
             for done in others:
                 done.result()  # a failure there is a failure here
-    for part in PARTS:  # compiled above, or now: loads from the cache
+        rest = PARTS[1:]
+    for part in rest:  # compiled by another process (this one loads it), or here
         part()
     return time.perf_counter() - start
