@@ -4,6 +4,8 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.numba-cache
+# pytest-xdist processes of `make test`; `mrdem warmup` compiles the kernels once before they start
+TEST_WORKERS ?= 2
 
 .PHONY: serve test test-slow lint bench venv clean
 
@@ -19,10 +21,12 @@ serve: $(STAMP)    # the service on 127.0.0.1:8000, store under ./data (MRDEM_* 
 	$(PY) -m service
 
 test: $(STAMP)      # the default run; --durations=15 lists the slowest tests
-	$(PY) -m pytest -q -m "not slow" --durations=15
+	$(VENV)/bin/mrdem warmup
+	$(PY) -m pytest -q -m "not slow" -n $(TEST_WORKERS) --durations=15
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow --durations=15
+	$(VENV)/bin/mrdem warmup
+	$(PY) -m pytest -q -m slow -n $(TEST_WORKERS) --durations=15
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
