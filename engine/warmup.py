@@ -73,8 +73,8 @@ def _tree_part() -> None:
 
 
 def _triangle_part() -> None:
-    """The triangle-set API (distances, all-pairs and listed contacts) and
-    :func:`mesh_distance`, in both precisions."""
+    """The triangle-set API (distances from sets and from raw float64 arrays, all-pairs and
+    listed contacts) and :func:`mesh_distance`, in both precisions."""
     tree = build_tree(box(), 0.05)
     near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
@@ -82,6 +82,7 @@ def _triangle_part() -> None:
         sa = TriangleSet(tri, precision)
         for kernel in KERNELS:
             triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
+            triangle_distances(tri, tri, kernel, precision, 0.1, threads=1)  # raw: fused kernel
             triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
