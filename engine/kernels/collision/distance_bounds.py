@@ -11,7 +11,8 @@ vertices, so the box holds the covered faces. Projected on any unit axis ``u``, 
 ``u·c_A ± Σ_k h_k |u·a_k|`` (centre ``c``, unit axes ``a_k``, half-extents ``h_k``), so the
 gap of the two spans is a lower bound on the distance of any point of A's faces to any
 of B's; :func:`box_gap` takes the largest gap over the 6 box axes and the axis through
-the two centres.
+the two centres. :func:`place_box` moves a B box into A's frame once and
+:func:`placed_gap` bounds it against A's nodes (the same arithmetic as :func:`box_gap`).
 
 Node rows (``(N, ≥ BOX + 15)`` float64, the distance search's row layout): columns
 ``BOX:BOX + 3`` centre, ``BOX + 3:BOX + 12`` the three axes (row-major, axis k at
@@ -28,6 +29,7 @@ from engine.kernels.jit import INLINE, JIT, sqrt
 BOX = 32  # first box column of the node rows
 AXES, HALF = BOX + 3, BOX + 12
 N_BOX = 15
+N_PLACED = 15  # rows of a placed box (:func:`place_box`)
 
 
 @njit(**JIT)
@@ -93,21 +95,14 @@ def _dot(p, q):
 
 
 @njit(**INLINE)
-def box_gap(a, i, b, j, r, s):
-    """Lower bound on the distance between the faces covered by A's node ``i`` (rows
-    ``a``) and B's node ``j`` (rows ``b``, moved by ``x ↦ R x + s``, ``r`` the 9 entries of
-    R row by row, ``s`` 3): the largest gap of the two boxes projected on A's 3 axes, B's 3
-    axes and the axis through the centres (−inf for that one when the centres coincide)."""
-    cx, cy, cz = _turn(r, b[j, BOX], b[j, BOX + 1], b[j, BOX + 2])
-    d = (cx + s[0] - a[i, BOX], cy + s[1] - a[i, BOX + 1], cz + s[2] - a[i, BOX + 2])
+def _gap(a, i, c, u, v, t, hb):
+    """:func:`box_gap` of A's node ``i`` and a box placed in A's frame: centre ``c``, unit
+    axes ``u, v, t``, half-extents ``hb`` (tuples of 3)."""
+    d = (c[0] - a[i, BOX], c[1] - a[i, BOX + 1], c[2] - a[i, BOX + 2])
     ha = (a[i, HALF], a[i, HALF + 1], a[i, HALF + 2])
-    hb = (b[j, HALF], b[j, HALF + 1], b[j, HALF + 2])
     p = (a[i, AXES], a[i, AXES + 1], a[i, AXES + 2])
     q = (a[i, AXES + 3], a[i, AXES + 4], a[i, AXES + 5])
     w = (a[i, AXES + 6], a[i, AXES + 7], a[i, AXES + 8])
-    u = _turn(r, b[j, AXES], b[j, AXES + 1], b[j, AXES + 2])
-    v = _turn(r, b[j, AXES + 3], b[j, AXES + 4], b[j, AXES + 5])
-    t = _turn(r, b[j, AXES + 6], b[j, AXES + 7], b[j, AXES + 8])
     c00, c01, c02 = abs(_dot(p, u)), abs(_dot(p, v)), abs(_dot(p, t))
     c10, c11, c12 = abs(_dot(q, u)), abs(_dot(q, v)), abs(_dot(q, t))
     c20, c21, c22 = abs(_dot(w, u)), abs(_dot(w, v)), abs(_dot(w, t))
@@ -124,3 +119,46 @@ def box_gap(a, i, b, j, r, s):
     length = sqrt(length2)
     centres = (length2 - spread) / length if length > 0.0 else -np.inf
     return max(gap, centres)
+
+
+@njit(**INLINE)
+def box_gap(a, i, b, j, r, s):
+    """Lower bound on the distance between the faces covered by A's node ``i`` (rows
+    ``a``) and B's node ``j`` (rows ``b``, moved by ``x ↦ R x + s``, ``r`` the 9 entries of
+    R row by row, ``s`` 3): the largest gap of the two boxes projected on A's 3 axes, B's 3
+    axes and the axis through the centres (−inf for that one when the centres coincide)."""
+    cx, cy, cz = _turn(r, b[j, BOX], b[j, BOX + 1], b[j, BOX + 2])
+    c = (cx + s[0], cy + s[1], cz + s[2])
+    u = _turn(r, b[j, AXES], b[j, AXES + 1], b[j, AXES + 2])
+    v = _turn(r, b[j, AXES + 3], b[j, AXES + 4], b[j, AXES + 5])
+    t = _turn(r, b[j, AXES + 6], b[j, AXES + 7], b[j, AXES + 8])
+    return _gap(a, i, c, u, v, t, (b[j, HALF], b[j, HALF + 1], b[j, HALF + 2]))
+
+
+@njit(**INLINE)
+def place_box(b, j, r, s, placed, k):
+    """Column ``k`` of ``placed (≥ N_PLACED, m)`` float64: B's node ``j`` box moved by ``x ↦
+    R x + s`` (as :func:`box_gap` moves it): rows 0:3 centre, 3:12 the three axes, 12:15
+    half-extents."""
+    placed[0, k], placed[1, k], placed[2, k] = _turn(r, b[j, BOX], b[j, BOX + 1], b[j, BOX + 2])
+    placed[0, k] += s[0]
+    placed[1, k] += s[1]
+    placed[2, k] += s[2]
+    for axis in range(3):
+        x, y, z = b[j, AXES + 3 * axis], b[j, AXES + 3 * axis + 1], b[j, AXES + 3 * axis + 2]
+        placed[3 + 3 * axis, k], placed[4 + 3 * axis, k], placed[5 + 3 * axis, k] = _turn(
+            r, x, y, z
+        )
+    for c in range(3):
+        placed[12 + c, k] = b[j, HALF + c]
+
+
+@njit(**INLINE)
+def placed_gap(a, i, placed, k):
+    """:func:`box_gap` of A's node ``i`` and the box in column ``k`` of ``placed`` (from
+    :func:`place_box`)."""
+    c = (placed[0, k], placed[1, k], placed[2, k])
+    u = (placed[3, k], placed[4, k], placed[5, k])
+    v = (placed[6, k], placed[7, k], placed[8, k])
+    t = (placed[9, k], placed[10, k], placed[11, k])
+    return _gap(a, i, c, u, v, t, (placed[12, k], placed[13, k], placed[14, k]))
