@@ -36,11 +36,13 @@ ends (every other bound is at least as large). Else:
   leaf pair is then a candidate (bound 3 is its exact distance: it lowers the best
   distance or is dropped), any other pair is pushed back with its new key, or dropped.
   A pair whose bound 3 cannot exceed the best distance (its node triangles' nearest
-  vertex pair, less ``g_a + g_b``, does not: :func:`_may_drop`) is not refined;
+  vertex pair, less ``g_a + g_b``, does not: ``may_drop``) is not refined;
 * any other pair (refined, or with a bound ≤ 0: the depth-first dive skips bound 3) is
   unfolded: its child pairs get bounds 1 and 2 (B's nodes moved into A's frame once per
-  unfolding, :func:`_place`), and those kept are pushed unrefined, the largest bound
-  first.
+  unfolding, ``place_node``; with at least ``WIDE`` of them, the bounds of each A node
+  against all of them in one vectorised loop, ``child_bounds``: helpers of
+  :mod:`~engine.kernels.collision.distance_bounds`), and those kept are pushed
+  unrefined, the largest bound first.
 
 The closest points are computed once, for the pair found
 (:func:`~engine.kernels.geometry.triangle_points.exact_point`).
@@ -81,20 +83,34 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.batch import query_margin, relative_pose
-from engine.kernels.collision.distance_bounds import (
+from engine.kernels.collision.distance_bounds import (  # noqa: F401 (columns re-exported)
     BOX,
+    CENTRE,
+    COORDS,
+    COUNT,
+    EXTENT,
+    FACE,
+    FIRST,
+    FRAMES,
+    GAP,
     N_BOX,
-    N_PLACED,
+    PLACED,
+    RADIUS,
+    WIDE,
+    bound_placed,
     box_gap,
-    place_box,
-    placed_gap,
+    child_bounds,
+    far_placed,
+    may_drop,
+    node_bound,
+    place_node,
+    sphere_bound,
+    sphere_far,
 )
 from engine.kernels.geometry.triangle_batch import ZERO
 from engine.kernels.geometry.triangle_points import exact_paired, exact_point
-from engine.kernels.jit import EXACT_JIT, INLINE, JIT, sqrt
+from engine.kernels.jit import EXACT_JIT, INLINE, JIT
 
-# Columns of the node rows.
-COORDS, FRAMES, CENTRE, RADIUS, GAP, FIRST, COUNT, FACE, EXTENT = 0, 9, 23, 26, 27, 28, 29, 30, 31
 N_COLUMNS = BOX + N_BOX
 # Fields of the tuple returned by :func:`distance_kernel`.
 (
@@ -196,40 +212,6 @@ def _turned(r, x, y, z):
 
 
 @njit(**INLINE)
-def _sphere(a, i, b, j, r, s):
-    """Sphere bound of the pair (i, j)."""
-    cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
-    cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
-    cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
-    ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
-    return sqrt(ux * ux + uy * uy + uz * uz) - a[i, RADIUS] - b[j, RADIUS]
-
-
-@njit(**INLINE)
-def _far(a, i, b, j, r, s, limit):
-    """``(far, d2)``: the sphere bound of the pair (i, j) exceeds ``limit`` (tested on
-    squares, no square root), and the squared distance of the centres."""
-    cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
-    cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
-    cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
-    ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
-    d2 = ux * ux + uy * uy + uz * uz
-    reach = limit + a[i, RADIUS] + b[j, RADIUS]
-    return reach >= 0.0 and d2 > reach * reach, d2
-
-
-@njit(**INLINE)
-def _bound(a, i, b, j, r, s, best, margin):
-    """Bound 1 of the pair (i, j), then (unless that one drops the pair, ``bound − margin
-    > best``: then +inf) the larger of bounds 1 and 2."""
-    far, d2 = _far(a, i, b, j, r, s, best + margin)
-    if far:
-        return np.inf
-    sphere = sqrt(d2) - a[i, RADIUS] - b[j, RADIUS]
-    return max(sphere, box_gap(a, i, b, j, r, s))
-
-
-@njit(**INLINE)
 def _gather_a(prepared, i, k, ga, gfa):
     """Column ``k`` of ``ga (9, m)``, ``gfa (14, m)``: A's node ``i``."""
     for c in range(9):
@@ -287,62 +269,6 @@ def _to_world(ra, position, p):
     )
 
 
-PLACED = N_PLACED + 4  # rows of the placed B nodes of an unfolded pair: box, sphere
-
-
-@njit(**INLINE)
-def _place(b, j, r, s, placed, k):
-    """Column ``k`` of ``placed (PLACED, m)``: B's node ``j`` moved into A's frame, its box
-    (:func:`~engine.kernels.collision.distance_bounds.place_box`) then its sphere (centre,
-    radius)."""
-    place_box(b, j, r, s, placed, k)
-    x, y, z = b[j, CENTRE], b[j, CENTRE + 1], b[j, CENTRE + 2]
-    placed[N_PLACED, k] = r[0] * x + r[1] * y + r[2] * z + s[0]
-    placed[N_PLACED + 1, k] = r[3] * x + r[4] * y + r[5] * z + s[1]
-    placed[N_PLACED + 2, k] = r[6] * x + r[7] * y + r[8] * z + s[2]
-    placed[N_PLACED + 3, k] = b[j, RADIUS]
-
-
-@njit(**INLINE)
-def _far_placed(a, i, placed, k, limit):
-    """``(far, d2)`` of :func:`_far` for A's node ``i`` and the placed B node ``k``."""
-    ux = placed[N_PLACED, k] - a[i, CENTRE]
-    uy = placed[N_PLACED + 1, k] - a[i, CENTRE + 1]
-    uz = placed[N_PLACED + 2, k] - a[i, CENTRE + 2]
-    d2 = ux * ux + uy * uy + uz * uz
-    reach = limit + a[i, RADIUS] + placed[N_PLACED + 3, k]
-    return reach >= 0.0 and d2 > reach * reach, d2
-
-
-@njit(**INLINE)
-def _bound_placed(a, i, placed, k, best, margin):
-    """:func:`_bound` for A's node ``i`` and the placed B node ``k``."""
-    far, d2 = _far_placed(a, i, placed, k, best + margin)
-    if far:
-        return np.inf
-    sphere = sqrt(d2) - a[i, RADIUS] - placed[N_PLACED + 3, k]
-    return max(sphere, placed_gap(a, i, placed, k))
-
-
-@njit(**INLINE)
-def _may_drop(a, i, b, j, r, s, limit):
-    """Bound 3 of the internal pair (i, j) may exceed ``limit``: the nearest of the two
-    node triangles' vertex pairs (an upper bound on their distance), less ``g_a + g_b``,
-    does. (A heuristic only: it decides whether bound 3 is worth computing.)"""
-    near = np.inf
-    for w in range(3):
-        x, y, z = b[j, COORDS + 3 * w], b[j, COORDS + 3 * w + 1], b[j, COORDS + 3 * w + 2]
-        bx = r[0] * x + r[1] * y + r[2] * z + s[0]
-        by = r[3] * x + r[4] * y + r[5] * z + s[1]
-        bz = r[6] * x + r[7] * y + r[8] * z + s[2]
-        for v in range(3):
-            ux = bx - a[i, COORDS + 3 * v]
-            uy = by - a[i, COORDS + 3 * v + 1]
-            uz = bz - a[i, COORDS + 3 * v + 2]
-            near = min(near, ux * ux + uy * uy + uz * uz)
-    return sqrt(near) - a[i, GAP] - b[j, GAP] > limit
-
-
 @njit(**JIT)
 def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     """Best-first search from the roots' pair, given the descents' ``best`` distance (> 0)
@@ -358,7 +284,8 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     child = np.empty((2, CHILDREN_START), np.int64)
     keep = np.empty((2, 8), np.int64)  # children kept by the parent test
     placed = np.empty((PLACED, 9))  # B's nodes of an unfolded pair, moved (+ B's parent)
-    key[0] = max(_bound(a, ZERO, b, ZERO, r, s, np.inf, margin), 0.0)
+    lows = np.empty(9)  # bounds of one A child against them
+    key[0] = max(node_bound(a, ZERO, b, ZERO, r, s, np.inf, margin), 0.0)
     entry_a[0], entry_b[0], refined[0] = 0, 0, 0
     entries = size = ZERO
     size = _push(heap, size, key, ZERO)
@@ -370,7 +297,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
         i, j = entry_a[e], entry_b[e]
         leaf = a[i, COUNT] == 0 and b[j, COUNT] == 0
         unsure = refined[e] == 0 and not leaf and key[e] > 0.0
-        if unsure and not _may_drop(a, i, b, j, r, s, best + margin):
+        if unsure and not may_drop(a, i, b, j, r, s, best + margin):
             refined[e] = 1  # bound 3 cannot drop it: unfold it now
         if refined[e] == 0 and (leaf or key[e] > 0.0):
             # bound 3 for up to POPS unrefined pairs from the top; a leaf pair is then a
@@ -384,7 +311,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                 if a[i, COUNT] > 0 or b[j, COUNT] > 0:
                     if key[e] <= 0.0:
                         break
-                    if m > 0 and not _may_drop(a, i, b, j, r, s, best + margin):
+                    if m > 0 and not may_drop(a, i, b, j, r, s, best + margin):
                         refined[e] = 1
                         break
                 size = _pop(heap, size, key)
@@ -421,20 +348,21 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
         if max(count_a, count_b) > keep.shape[1]:
             keep = np.empty((2, max(count_a, count_b)), np.int64)
             placed = np.empty((PLACED, max(count_a, count_b) + 1))
+            lows = np.empty(max(count_a, count_b) + 1)
         limit = best + margin
         for t in range(count_b):  # B's nodes moved once
-            _place(b, first_b + t, r, s, placed, t)
+            place_node(b, first_b + t, r, s, placed, t)
         kept_a = kept_b = 0  # both unfold: each child against the other node's sphere
         if count_a > 1 and count_b > 1:
-            _place(b, j, r, s, placed, count_b)
+            place_node(b, j, r, s, placed, count_b)
             for ci in range(first_a, first_a + count_a):
-                if _far_placed(a, ci, placed, count_b, limit)[0]:
+                if far_placed(a, ci, placed, count_b, limit)[0]:
                     pruned += count_b
                     continue
                 keep[0, kept_a] = ci
                 kept_a += 1
             for t in range(count_b):
-                if _far(a, i, b, first_b + t, r, s, limit)[0]:
+                if sphere_far(a, i, b, first_b + t, r, s, limit)[0]:
                     pruned += kept_a
                     continue
                 keep[1, kept_b] = t
@@ -447,11 +375,17 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                 keep[1, kept_b] = t
                 kept_b += 1
         kept = 0  # the survivors, sorted by bound, the largest first
+        wide = count_b >= WIDE
         for ta in range(kept_a):
             ci = keep[0, ta]
+            if wide:
+                child_bounds(a, ci, placed, count_b, lows)
             for tb in range(kept_b):
                 t = keep[1, tb]
-                low = _bound_placed(a, ci, placed, t, best, margin)
+                if wide:
+                    low = lows[t]
+                else:
+                    low = bound_placed(a, ci, placed, t, best, margin)
                 if low - margin > best:
                     pruned += 1
                     continue
@@ -513,7 +447,7 @@ def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, ori
             pick, low = first, np.inf
             for c in range(first, first + count):
                 ci, cj = (c, j) if split else (i, c)
-                bound = _sphere(a, ci, b, cj, r, s)
+                bound = sphere_bound(a, ci, b, cj, r, s)
                 if guide == 1:
                     bound = max(bound, box_gap(a, ci, b, cj, r, s))
                 if bound < low:
