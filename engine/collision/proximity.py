@@ -24,10 +24,11 @@ whose module documents it): a greedy descent gives a first upper bound; then a b
 search over a heap of node pairs keyed on their lower bound: child pairs get the cheap
 sphere and box bounds when their parent unfolds, and the exact distance of the two node
 triangles less their g only when they reach the top of the heap (vectorised over up to 8
-pairs); leaf pairs at the top are evaluated with the exact kernel
-(:func:`~engine.kernels.geometry.triangle_points.exact_point`, in ``precision``, on B's
-triangles moved as the contact search moves them). It stops when the smallest bound in
-the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
+pairs); leaf pairs at the top are evaluated with the exact kernel the same way (in
+``precision``, on B's triangles moved as the contact search moves them), and the closest
+points of the pair found with
+:func:`~engine.kernels.geometry.triangle_points.exact_point`. It stops when the smallest
+bound in the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
 intersect). The host validates, looks up the trees' packed node rows (built once per
 tree), calls the kernel once and wraps its output.
 
@@ -62,7 +63,7 @@ class MeshDistance:
     point_a, point_b : (3,) float64 — closest points on those faces, world frame
     node_pairs : int — node pairs bounded (the roots', and every child pair of an
         unfolded pair)
-    probes : int — leaf pairs whose exact distance and closest points were evaluated
+    probes : int — leaf pairs whose exact distance was evaluated
     rounds : int — node pairs unfolded
     largest_front : int — largest number of node pairs waiting in the search's heap
     sphere_pruned : int — child pairs dropped by their sphere or box bound, before any
@@ -109,14 +110,20 @@ def mesh_distance(
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation,
     )  # fmt: skip
     distance, face_a, face_b, point_a, point_b, pairs, probes, rounds, largest, pruned = found
-    return MeshDistance(
-        distance,
-        np.array((face_a, face_b)),
-        np.array(point_a),
-        np.array(point_b),
-        pairs,
-        probes,
-        rounds,
-        largest,
-        pruned,
-    )
+    # the frozen dataclass's __init__ sets each field through object.__setattr__ (1.4 µs
+    # of a ~6 µs call); the same fields stored into the new instance's __dict__: 0.5 µs
+    result = _new(MeshDistance)
+    fields = result.__dict__
+    fields["distance"] = distance
+    fields["faces"] = np.array((face_a, face_b))
+    fields["point_a"] = np.array(point_a)
+    fields["point_b"] = np.array(point_b)
+    fields["node_pairs"] = pairs
+    fields["probes"] = probes
+    fields["rounds"] = rounds
+    fields["largest_front"] = largest
+    fields["sphere_pruned"] = pruned
+    return result
+
+
+_new = object.__new__

@@ -11,7 +11,8 @@ vertices, so the box holds the covered faces. Projected on any unit axis ``u``, 
 ``u·c_A ± Σ_k h_k |u·a_k|`` (centre ``c``, unit axes ``a_k``, half-extents ``h_k``), so the
 gap of the two spans is a lower bound on the distance of any point of A's faces to any
 of B's; :func:`box_gap` takes the largest gap over the 6 box axes and the axis through
-the two centres.
+the two centres. :func:`place_box` moves a B box into A's frame once and
+:func:`placed_gap` bounds it against A's nodes (the same arithmetic as :func:`box_gap`).
 
 Node rows (``(N, ≥ BOX + 15)`` float64, the distance search's row layout): columns
 ``BOX:BOX + 3`` centre, ``BOX + 3:BOX + 12`` the three axes (row-major, axis k at
@@ -23,11 +24,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import INLINE, JIT, sqrt
+from engine.kernels.jit import INLINE, JIT, select, sqrt
 
+# Columns of the node rows (:mod:`~engine.kernels.collision.distance_search` documents them).
+COORDS, FRAMES, CENTRE, RADIUS, GAP, FIRST, COUNT, FACE, EXTENT = 0, 9, 23, 26, 27, 28, 29, 30, 31
 BOX = 32  # first box column of the node rows
 AXES, HALF = BOX + 3, BOX + 12
 N_BOX = 15
+N_PLACED = 15  # rows of a placed box (:func:`place_box`)
+WIDE = 4  # B's children from which their bounds are computed in one vectorised loop
+PLACED = N_PLACED + 4  # rows of the placed B nodes of an unfolded pair: box, sphere
 
 
 @njit(**JIT)
@@ -93,21 +99,14 @@ def _dot(p, q):
 
 
 @njit(**INLINE)
-def box_gap(a, i, b, j, r, s):
-    """Lower bound on the distance between the faces covered by A's node ``i`` (rows
-    ``a``) and B's node ``j`` (rows ``b``, moved by ``x ↦ R x + s``, ``r`` the 9 entries of
-    R row by row, ``s`` 3): the largest gap of the two boxes projected on A's 3 axes, B's 3
-    axes and the axis through the centres (−inf for that one when the centres coincide)."""
-    cx, cy, cz = _turn(r, b[j, BOX], b[j, BOX + 1], b[j, BOX + 2])
-    d = (cx + s[0] - a[i, BOX], cy + s[1] - a[i, BOX + 1], cz + s[2] - a[i, BOX + 2])
+def _gap(a, i, c, u, v, t, hb):
+    """:func:`box_gap` of A's node ``i`` and a box placed in A's frame: centre ``c``, unit
+    axes ``u, v, t``, half-extents ``hb`` (tuples of 3)."""
+    d = (c[0] - a[i, BOX], c[1] - a[i, BOX + 1], c[2] - a[i, BOX + 2])
     ha = (a[i, HALF], a[i, HALF + 1], a[i, HALF + 2])
-    hb = (b[j, HALF], b[j, HALF + 1], b[j, HALF + 2])
     p = (a[i, AXES], a[i, AXES + 1], a[i, AXES + 2])
     q = (a[i, AXES + 3], a[i, AXES + 4], a[i, AXES + 5])
     w = (a[i, AXES + 6], a[i, AXES + 7], a[i, AXES + 8])
-    u = _turn(r, b[j, AXES], b[j, AXES + 1], b[j, AXES + 2])
-    v = _turn(r, b[j, AXES + 3], b[j, AXES + 4], b[j, AXES + 5])
-    t = _turn(r, b[j, AXES + 6], b[j, AXES + 7], b[j, AXES + 8])
     c00, c01, c02 = abs(_dot(p, u)), abs(_dot(p, v)), abs(_dot(p, t))
     c10, c11, c12 = abs(_dot(q, u)), abs(_dot(q, v)), abs(_dot(q, t))
     c20, c21, c22 = abs(_dot(w, u)), abs(_dot(w, v)), abs(_dot(w, t))
@@ -124,3 +123,181 @@ def box_gap(a, i, b, j, r, s):
     length = sqrt(length2)
     centres = (length2 - spread) / length if length > 0.0 else -np.inf
     return max(gap, centres)
+
+
+@njit(**INLINE)
+def box_gap(a, i, b, j, r, s):
+    """Lower bound on the distance between the faces covered by A's node ``i`` (rows
+    ``a``) and B's node ``j`` (rows ``b``, moved by ``x ↦ R x + s``, ``r`` the 9 entries of
+    R row by row, ``s`` 3): the largest gap of the two boxes projected on A's 3 axes, B's 3
+    axes and the axis through the centres (−inf for that one when the centres coincide)."""
+    cx, cy, cz = _turn(r, b[j, BOX], b[j, BOX + 1], b[j, BOX + 2])
+    c = (cx + s[0], cy + s[1], cz + s[2])
+    u = _turn(r, b[j, AXES], b[j, AXES + 1], b[j, AXES + 2])
+    v = _turn(r, b[j, AXES + 3], b[j, AXES + 4], b[j, AXES + 5])
+    t = _turn(r, b[j, AXES + 6], b[j, AXES + 7], b[j, AXES + 8])
+    return _gap(a, i, c, u, v, t, (b[j, HALF], b[j, HALF + 1], b[j, HALF + 2]))
+
+
+@njit(**INLINE)
+def place_box(b, j, r, s, placed, k):
+    """Column ``k`` of ``placed (≥ N_PLACED, m)`` float64: B's node ``j`` box moved by ``x ↦
+    R x + s`` (as :func:`box_gap` moves it): rows 0:3 centre, 3:12 the three axes, 12:15
+    half-extents."""
+    placed[0, k], placed[1, k], placed[2, k] = _turn(r, b[j, BOX], b[j, BOX + 1], b[j, BOX + 2])
+    placed[0, k] += s[0]
+    placed[1, k] += s[1]
+    placed[2, k] += s[2]
+    for axis in range(3):
+        x, y, z = b[j, AXES + 3 * axis], b[j, AXES + 3 * axis + 1], b[j, AXES + 3 * axis + 2]
+        placed[3 + 3 * axis, k], placed[4 + 3 * axis, k], placed[5 + 3 * axis, k] = _turn(
+            r, x, y, z
+        )
+    for c in range(3):
+        placed[12 + c, k] = b[j, HALF + c]
+
+
+@njit(**INLINE)
+def placed_gap(a, i, placed, k):
+    """:func:`box_gap` of A's node ``i`` and the box in column ``k`` of ``placed`` (from
+    :func:`place_box`)."""
+    c = (placed[0, k], placed[1, k], placed[2, k])
+    u = (placed[3, k], placed[4, k], placed[5, k])
+    v = (placed[6, k], placed[7, k], placed[8, k])
+    t = (placed[9, k], placed[10, k], placed[11, k])
+    return _gap(a, i, c, u, v, t, (placed[12, k], placed[13, k], placed[14, k]))
+
+
+@njit(**INLINE)
+def sphere_bound(a, i, b, j, r, s):
+    """Sphere bound of the pair (i, j)."""
+    cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
+    cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
+    cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
+    ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
+    return sqrt(ux * ux + uy * uy + uz * uz) - a[i, RADIUS] - b[j, RADIUS]
+
+
+@njit(**INLINE)
+def sphere_far(a, i, b, j, r, s, limit):
+    """``(far, d2)``: the sphere bound of the pair (i, j) exceeds ``limit`` (tested on
+    squares, no square root), and the squared distance of the centres."""
+    cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
+    cy = r[3] * b[j, CENTRE] + r[4] * b[j, CENTRE + 1] + r[5] * b[j, CENTRE + 2] + s[1]
+    cz = r[6] * b[j, CENTRE] + r[7] * b[j, CENTRE + 1] + r[8] * b[j, CENTRE + 2] + s[2]
+    ux, uy, uz = cx - a[i, CENTRE], cy - a[i, CENTRE + 1], cz - a[i, CENTRE + 2]
+    d2 = ux * ux + uy * uy + uz * uz
+    reach = limit + a[i, RADIUS] + b[j, RADIUS]
+    return reach >= 0.0 and d2 > reach * reach, d2
+
+
+@njit(**INLINE)
+def node_bound(a, i, b, j, r, s, best, margin):
+    """Bound 1 of the pair (i, j), then (unless that one drops the pair, ``bound − margin
+    > best``: then +inf) the larger of bounds 1 and 2."""
+    far, d2 = sphere_far(a, i, b, j, r, s, best + margin)
+    if far:
+        return np.inf
+    sphere = sqrt(d2) - a[i, RADIUS] - b[j, RADIUS]
+    return max(sphere, box_gap(a, i, b, j, r, s))
+
+
+@njit(**INLINE)
+def place_node(b, j, r, s, placed, k):
+    """Column ``k`` of ``placed (PLACED, m)``: B's node ``j`` moved into A's frame, its box
+    (:func:`~engine.kernels.collision.distance_bounds.place_box`) then its sphere (centre,
+    radius)."""
+    place_box(b, j, r, s, placed, k)
+    x, y, z = b[j, CENTRE], b[j, CENTRE + 1], b[j, CENTRE + 2]
+    placed[N_PLACED, k] = r[0] * x + r[1] * y + r[2] * z + s[0]
+    placed[N_PLACED + 1, k] = r[3] * x + r[4] * y + r[5] * z + s[1]
+    placed[N_PLACED + 2, k] = r[6] * x + r[7] * y + r[8] * z + s[2]
+    placed[N_PLACED + 3, k] = b[j, RADIUS]
+
+
+@njit(**INLINE)
+def far_placed(a, i, placed, k, limit):
+    """``(far, d2)`` of :func:`sphere_far` for A's node ``i`` and the placed B node ``k``."""
+    ux = placed[N_PLACED, k] - a[i, CENTRE]
+    uy = placed[N_PLACED + 1, k] - a[i, CENTRE + 1]
+    uz = placed[N_PLACED + 2, k] - a[i, CENTRE + 2]
+    d2 = ux * ux + uy * uy + uz * uz
+    reach = limit + a[i, RADIUS] + placed[N_PLACED + 3, k]
+    return reach >= 0.0 and d2 > reach * reach, d2
+
+
+@njit(**INLINE)
+def bound_placed(a, i, placed, k, best, margin):
+    """:func:`node_bound` for A's node ``i`` and the placed B node ``k``."""
+    far, d2 = far_placed(a, i, placed, k, best + margin)
+    if far:
+        return np.inf
+    sphere = sqrt(d2) - a[i, RADIUS] - placed[N_PLACED + 3, k]
+    return max(sphere, placed_gap(a, i, placed, k))
+
+
+@njit(**JIT)
+def child_bounds(a, i, placed, n, out):
+    """``out[t]`` (``0 ≤ t < n``): the larger of bounds 1 and 2 of A's node ``i`` and the
+    placed B node ``t`` (:func:`place_node`); one loop over the columns, vectorised."""
+    ox, oy, oz, rad = a[i, CENTRE], a[i, CENTRE + 1], a[i, CENTRE + 2], a[i, RADIUS]
+    bx, by, bz = a[i, BOX], a[i, BOX + 1], a[i, BOX + 2]
+    h0, h1, h2 = a[i, BOX + 12], a[i, BOX + 13], a[i, BOX + 14]
+    p0, p1, p2 = a[i, BOX + 3], a[i, BOX + 4], a[i, BOX + 5]
+    q0, q1, q2 = a[i, BOX + 6], a[i, BOX + 7], a[i, BOX + 8]
+    w0, w1, w2 = a[i, BOX + 9], a[i, BOX + 10], a[i, BOX + 11]
+    for t in range(n):
+        ux = placed[N_PLACED, t] - ox
+        uy = placed[N_PLACED + 1, t] - oy
+        uz = placed[N_PLACED + 2, t] - oz
+        sphere = sqrt(ux * ux + uy * uy + uz * uz) - rad - placed[N_PLACED + 3, t]
+        d0, d1, d2 = placed[0, t] - bx, placed[1, t] - by, placed[2, t] - bz
+        u0, u1, u2 = placed[3, t], placed[4, t], placed[5, t]
+        v0, v1, v2 = placed[6, t], placed[7, t], placed[8, t]
+        t0, t1, t2 = placed[9, t], placed[10, t], placed[11, t]
+        g0, g1, g2 = placed[12, t], placed[13, t], placed[14, t]
+        c00 = abs(p0 * u0 + p1 * u1 + p2 * u2)
+        c01 = abs(p0 * v0 + p1 * v1 + p2 * v2)
+        c02 = abs(p0 * t0 + p1 * t1 + p2 * t2)
+        c10 = abs(q0 * u0 + q1 * u1 + q2 * u2)
+        c11 = abs(q0 * v0 + q1 * v1 + q2 * v2)
+        c12 = abs(q0 * t0 + q1 * t1 + q2 * t2)
+        c20 = abs(w0 * u0 + w1 * u1 + w2 * u2)
+        c21 = abs(w0 * v0 + w1 * v1 + w2 * v2)
+        c22 = abs(w0 * t0 + w1 * t1 + w2 * t2)
+        da0 = abs(p0 * d0 + p1 * d1 + p2 * d2)
+        da1 = abs(q0 * d0 + q1 * d1 + q2 * d2)
+        da2 = abs(w0 * d0 + w1 * d1 + w2 * d2)
+        db0 = abs(u0 * d0 + u1 * d1 + u2 * d2)
+        db1 = abs(v0 * d0 + v1 * d1 + v2 * d2)
+        db2 = abs(t0 * d0 + t1 * d1 + t2 * d2)
+        gap = da0 - h0 - (g0 * c00 + g1 * c01 + g2 * c02)
+        gap = max(gap, da1 - h1 - (g0 * c10 + g1 * c11 + g2 * c12))
+        gap = max(gap, da2 - h2 - (g0 * c20 + g1 * c21 + g2 * c22))
+        gap = max(gap, db0 - g0 - (h0 * c00 + h1 * c10 + h2 * c20))
+        gap = max(gap, db1 - g1 - (h0 * c01 + h1 * c11 + h2 * c21))
+        gap = max(gap, db2 - g2 - (h0 * c02 + h1 * c12 + h2 * c22))
+        length2 = d0 * d0 + d1 * d1 + d2 * d2
+        spread = h0 * da0 + h1 * da1 + h2 * da2 + g0 * db0 + g1 * db1 + g2 * db2
+        length = sqrt(length2)
+        centres = select(length > 0.0, (length2 - spread) / length, -np.inf)
+        out[t] = max(max(gap, centres), sphere)
+
+
+@njit(**INLINE)
+def may_drop(a, i, b, j, r, s, limit):
+    """Bound 3 of the internal pair (i, j) may exceed ``limit``: the nearest of the two
+    node triangles' vertex pairs (an upper bound on their distance), less ``g_a + g_b``,
+    does. (A heuristic only: it decides whether bound 3 is worth computing.)"""
+    near = np.inf
+    for w in range(3):
+        x, y, z = b[j, COORDS + 3 * w], b[j, COORDS + 3 * w + 1], b[j, COORDS + 3 * w + 2]
+        bx = r[0] * x + r[1] * y + r[2] * z + s[0]
+        by = r[3] * x + r[4] * y + r[5] * z + s[1]
+        bz = r[6] * x + r[7] * y + r[8] * z + s[2]
+        for v in range(3):
+            ux = bx - a[i, COORDS + 3 * v]
+            uy = by - a[i, COORDS + 3 * v + 1]
+            uz = bz - a[i, COORDS + 3 * v + 2]
+            near = min(near, ux * ux + uy * uy + uz * uz)
+    return sqrt(near) - a[i, GAP] - b[j, GAP] > limit

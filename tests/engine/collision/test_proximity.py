@@ -12,6 +12,7 @@ Two oracles, both the exact kernel on every face pair:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -262,6 +263,8 @@ def test_result_is_a_frozen_dataclass():
         result.distance = 0.0
     again = mesh_distance(tree, Pose.identity(), tree, Pose([2.5, 0, 0], [1, 0, 0, 0]))
     assert repr(again) == repr(result) and again.distance == result.distance
+    # built without __init__: every field, nothing else
+    assert set(vars(result)) == {f.name for f in dataclasses.fields(MeshDistance)}
 
 
 def test_bad_arguments():
@@ -302,6 +305,7 @@ def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
     cover_a, cover_b = covered_faces(tree_a), covered_faces(tree_b)
     rng = np.random.default_rng(15)
     radii = tree_a.bounding_radius + tree_b.bounding_radius
+    placed = np.empty((db.N_PLACED, 1))
     for pose in range(6):
         q = rng.normal(size=(2, 4))
         pose_a = Pose(rng.normal(size=3), q[0] / np.linalg.norm(q[0]))
@@ -325,6 +329,8 @@ def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
             true = every[np.ix_(cover_a[i], cover_b[j])].min()
             box = db.box_gap(rows_a, i, rows_b, j, r, s)
             assert box <= true + tol, (pose, i, j, box, true)
+            db.place_box(rows_b, j, r, s, placed, 0)  # B's box moved once: the same bound
+            assert abs(db.placed_gap(rows_a, i, placed, 0) - box) <= tol, (pose, i, j)
             centre_b = rotation @ rows_b[j, ds.CENTRE : ds.CENTRE + 3] + shift
             sphere = np.linalg.norm(centre_b - rows_a[i, ds.CENTRE : ds.CENTRE + 3])
             sphere -= rows_a[i, ds.RADIUS] + rows_b[j, ds.RADIUS]
