@@ -17,7 +17,14 @@ so nothing of size ``n`` but the results is allocated: with two raw arrays (writ
 float32 or float64 ones are used in place, no copy) and the exact kernel or one sweep, each
 pair is prepared inside the pair loop (``kernels/geometry/paired_fused.py``); otherwise
 block by block into buffers (``kernels/geometry/triangle_paired.py``). Both give the same
-bits.
+bits, with one deliberate exception: the float32 one-sweep kernels (``"iterative"``,
+``"hybrid"``) on two raw arrays prepare each triangle in float32 (coordinates rounded to
+float32, then float32 arithmetic; 1.7× faster than float64) and rebuild face points from
+their barycentrics. Their certified decisions are still the exact kernel's, their bounds
+still bracket the distance, and hybrid fallbacks are still the exact kernel's results bit
+for bit; but certified values and points may differ from those of prepared
+:class:`TriangleSet` arguments (or of other sweep counts) by rounding, and where the
+closest points are not unique (parallel faces) the points may be other closest points.
 """
 
 from __future__ import annotations
@@ -290,7 +297,8 @@ def triangle_distances(
         # both raw: preparation fused into the pair loop (one sweep only, see paired_fused)
         raw_a, raw_b = _common_dtype(side_a[1], side_b[1])
         out = (distance, lower, point_a.reshape(-1), point_b.reshape(-1), status)
-        kernel_fn = pf.paired_raw_kernel
+        native = params[0] != tb.EXACT and np.dtype(dtype) == np.float32
+        kernel_fn = pf.paired_native_kernel if native else pf.paired_raw_kernel
         args = (raw_a.reshape(-1), raw_b.reshape(-1))
     else:
         out = (distance, lower, point_a, point_b, status)

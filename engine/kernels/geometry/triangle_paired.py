@@ -46,19 +46,20 @@ from engine.kernels.jit import INLINE, JIT, select
 
 
 @njit(**INLINE)
-def prepared_triangle(p, q, r, limit, tiny):
-    """One triangle prepared in float64, in registers: the arithmetic of every preparation
-    (:func:`prepare_block` here, ``paired_fused.load_prepared`` in the fused pair loop).
+def prepared_triangle(p, q, r, limit, tiny, one):
+    """One triangle prepared in registers, in the float type of ``one`` (1 in it): the
+    arithmetic of every preparation (:func:`prepare_block` here and
+    ``paired_fused.load_prepared`` in float64; ``paired_fused.load_native`` in the kernel
+    precision).
 
-    ``p, q, r`` the vertices as float64 ``(x, y, z)`` tuples; ``limit``, ``tiny`` float64
-    (as :func:`prepare_block`). Returns ``(ok, v0, v1, v2, frame, kappa)``: ``ok`` False
-    when a coordinate is NaN or beyond ``±limit``; the vertices rotated (orientation kept)
-    so that ``v0`` sits opposite the first longest edge; the
+    ``p, q, r`` the vertices as ``(x, y, z)`` tuples; ``limit``, ``tiny`` (as
+    :func:`prepare_block`), all of the type of ``one``. Returns ``(ok, v0, v1, v2, frame,
+    kappa)``: ``ok`` False when a coordinate is NaN or beyond ``±limit``; the vertices
+    rotated (orientation kept) so that ``v0`` sits opposite the first longest edge; the
     :func:`~engine.kernels.geometry.triangle_exact.triangle_frame` tuple of the rotated
     triangle; ``kappa`` its conditioning (1 for slivers). Values a caller does not use
     (the inverse edge lengths, ``kappa``) cost nothing: LLVM drops them.
     """
-    one = 1.0
     ok = (abs(p[0]) <= limit) & (abs(p[1]) <= limit) & (abs(p[2]) <= limit)
     ok = ok & (abs(q[0]) <= limit) & (abs(q[1]) <= limit) & (abs(q[2]) <= limit)
     ok = ok & (abs(r[0]) <= limit) & (abs(r[1]) <= limit) & (abs(r[2]) <= limit)
@@ -95,7 +96,7 @@ def prepare_block(src, m, limit, tiny, coords, frames):
         p = (np.float64(src[k, 0, 0]), np.float64(src[k, 0, 1]), np.float64(src[k, 0, 2]))
         q = (np.float64(src[k, 1, 0]), np.float64(src[k, 1, 1]), np.float64(src[k, 1, 2]))
         r = (np.float64(src[k, 2, 0]), np.float64(src[k, 2, 1]), np.float64(src[k, 2, 2]))
-        ok, v0, v1, v2, (n, g1, g2, il, valid), kappa = prepared_triangle(p, q, r, limit, tiny)
+        ok, v0, v1, v2, (n, g1, g2, il, valid), kappa = prepared_triangle(p, q, r, limit, tiny, one)
         good = good & ok
         coords[0, k], coords[1, k], coords[2, k] = v0
         coords[3, k], coords[4, k], coords[5, k] = v1
