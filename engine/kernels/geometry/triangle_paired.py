@@ -42,7 +42,41 @@ from engine.kernels.geometry.triangle_batch import (
 from engine.kernels.geometry.triangle_exact import triangle_frame
 from engine.kernels.geometry.triangle_iterative import classify
 from engine.kernels.geometry.triangle_points import exact_points
-from engine.kernels.jit import JIT, select
+from engine.kernels.jit import INLINE, JIT, select
+
+
+@njit(**INLINE)
+def prepared_triangle(p, q, r, limit, tiny, one):
+    """One triangle prepared in registers, in the float type of ``one`` (1 in it): the
+    arithmetic of every preparation (:func:`prepare_block` here and
+    ``paired_fused.load_prepared`` in float64; ``paired_fused.load_native`` in the kernel
+    precision).
+
+    ``p, q, r`` the vertices as ``(x, y, z)`` tuples; ``limit``, ``tiny`` (as
+    :func:`prepare_block`), all of the type of ``one``. Returns ``(ok, v0, v1, v2, frame,
+    kappa)``: ``ok`` False when a coordinate is NaN or beyond ``±limit``; the vertices
+    rotated (orientation kept) so that ``v0`` sits opposite the first longest edge; the
+    :func:`~engine.kernels.geometry.triangle_exact.triangle_frame` tuple of the rotated
+    triangle; ``kappa`` its conditioning (1 for slivers). Values a caller does not use
+    (the inverse edge lengths, ``kappa``) cost nothing: LLVM drops them.
+    """
+    ok = (abs(p[0]) <= limit) & (abs(p[1]) <= limit) & (abs(p[2]) <= limit)
+    ok = ok & (abs(q[0]) <= limit) & (abs(q[1]) <= limit) & (abs(q[2]) <= limit)
+    ok = ok & (abs(r[0]) <= limit) & (abs(r[1]) <= limit) & (abs(r[2]) <= limit)
+    ax, ay, az = r[0] - q[0], r[1] - q[1], r[2] - q[2]
+    bx, by, bz = p[0] - r[0], p[1] - r[1], p[2] - r[2]
+    cx, cy, cz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+    l0 = ax * ax + ay * ay + az * az  # squared length of the edge opposite vertex 0
+    l1 = bx * bx + by * by + bz * bz
+    l2 = cx * cx + cy * cy + cz * cz
+    first0 = (l0 >= l1) & (l0 >= l2)
+    first1 = ~first0 & (l1 >= l2)
+    v0 = select(first0, p, select(first1, q, r))
+    v1 = select(first0, q, select(first1, r, p))
+    v2 = select(first0, r, select(first1, p, q))
+    frame = triangle_frame(v0, v1, v2, one, tiny)
+    kappa = select(frame[4], _conditioning(v0, v1, v2, one, tiny), one)
+    return ok, v0, v1, v2, frame, kappa
 
 
 @njit(**JIT)
@@ -57,37 +91,44 @@ def prepare_block(src, m, limit, tiny, coords, frames):
     beyond ``±limit`` (int64); their columns hold garbage.
     """
     one = 1.0
-    bad = ZERO
+    good = True  # a bool reduction: an int64 counter would cap the loop at 4 lanes
     for k in range(m):
-        x0, y0, z0 = np.float64(src[k, 0, 0]), np.float64(src[k, 0, 1]), np.float64(src[k, 0, 2])
-        x1, y1, z1 = np.float64(src[k, 1, 0]), np.float64(src[k, 1, 1]), np.float64(src[k, 1, 2])
-        x2, y2, z2 = np.float64(src[k, 2, 0]), np.float64(src[k, 2, 1]), np.float64(src[k, 2, 2])
-        ok = (abs(x0) <= limit) & (abs(y0) <= limit) & (abs(z0) <= limit)
-        ok = ok & (abs(x1) <= limit) & (abs(y1) <= limit) & (abs(z1) <= limit)
-        ok = ok & (abs(x2) <= limit) & (abs(y2) <= limit) & (abs(z2) <= limit)
-        bad += select(ok, ZERO, np.int64(1))
-        p, q, r = (x0, y0, z0), (x1, y1, z1), (x2, y2, z2)
-        ax, ay, az = r[0] - q[0], r[1] - q[1], r[2] - q[2]
-        bx, by, bz = p[0] - r[0], p[1] - r[1], p[2] - r[2]
-        cx, cy, cz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
-        l0 = ax * ax + ay * ay + az * az  # squared length of the edge opposite vertex 0
-        l1 = bx * bx + by * by + bz * bz
-        l2 = cx * cx + cy * cy + cz * cz
-        first0 = (l0 >= l1) & (l0 >= l2)
-        first1 = ~first0 & (l1 >= l2)
-        v0 = select(first0, p, select(first1, q, r))
-        v1 = select(first0, q, select(first1, r, p))
-        v2 = select(first0, r, select(first1, p, q))
-        n, g1, g2, il, valid = triangle_frame(v0, v1, v2, one, tiny)
+        p = (np.float64(src[k, 0, 0]), np.float64(src[k, 0, 1]), np.float64(src[k, 0, 2]))
+        q = (np.float64(src[k, 1, 0]), np.float64(src[k, 1, 1]), np.float64(src[k, 1, 2]))
+        r = (np.float64(src[k, 2, 0]), np.float64(src[k, 2, 1]), np.float64(src[k, 2, 2]))
+        ok, v0, v1, v2, (n, g1, g2, il, valid), kappa = prepared_triangle(p, q, r, limit, tiny, one)
+        good = good & ok
         coords[0, k], coords[1, k], coords[2, k] = v0
         coords[3, k], coords[4, k], coords[5, k] = v1
         coords[6, k], coords[7, k], coords[8, k] = v2
-        frames[13, k] = select(valid, _conditioning(v0, v1, v2, one, tiny), one)
+        frames[13, k] = kappa
         frames[0, k], frames[1, k], frames[2, k] = n
         frames[3, k], frames[4, k], frames[5, k] = g1
         frames[6, k], frames[7, k], frames[8, k] = g2
         frames[9, k], frames[10, k], frames[11, k] = il
         frames[12, k] = select(valid, one, one - one)
+    if good:
+        return ZERO
+    bad = ZERO
+    for k in range(m):
+        for c in range(9):
+            if not abs(np.float64(src[k, c // 3, c % 3])) <= limit:
+                bad += 1
+                break
+    return bad
+
+
+@njit(**JIT)
+def count_invalid(flat, limit):
+    """Triangles of ``flat (9n,)`` (float32 or float64, 9 coordinates each) with a coordinate
+    that is NaN or beyond ``±limit`` (int64): the slow path of the fused pair loops, which
+    only reduce "all valid"."""
+    bad = ZERO
+    for k in range(len(flat) // 9):
+        ok = True
+        for c in range(9):
+            ok = ok & (abs(np.float64(flat[9 * k + c])) <= limit)
+        bad += select(ok, ZERO, np.int64(1))
     return bad
 
 

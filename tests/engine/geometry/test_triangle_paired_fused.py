@@ -5,7 +5,9 @@ Its results are compared bit for bit with the block-buffer kernel it bypasses
 (``triangle_paired.paired_kernel`` on the same raw arrays), on seeded random triangles mixed
 with degenerate ones (points, segments, collinear, needles, slivers, coincident and parallel
 pairs), over several 512-pair blocks and a tail, with more not-converged pairs than the
-fallback queue holds.
+fallback queue holds. The float32 one-sweep modes prepare in float32 (``native_block``) and
+are not bit for bit with the block path by design: they are checked against the exact
+kernel (decisions, fallbacks) and the float64 oracle (bounds, points on their triangles).
 """
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine import InvalidArgumentError, triangle_distances
+from engine import InvalidArgumentError, PairStatus, triangle_distances
 from engine.arguments import check_kernel, coordinate_limit, kernel_constants
+from engine.geometry.reference import point_triangle_distance_naive, triangle_distances_naive
 from engine.kernels.geometry import paired_fused as pf
 from engine.kernels.geometry import triangle_batch as tb
 from engine.kernels.geometry import triangle_paired as tp
@@ -73,8 +76,10 @@ def _pairs(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
     return a * scale, b * scale
 
 
-@pytest.mark.parametrize("precision", ["float32", "float64"])
-@pytest.mark.parametrize("kernel", ["exact", "iterative", "hybrid"])
+@pytest.mark.parametrize(
+    ("kernel", "precision"),
+    [("exact", "float32"), ("exact", "float64"), ("iterative", "float64"), ("hybrid", "float64")],
+)
 def test_fused_kernel_equals_the_block_kernel_bit_for_bit(kernel, precision):
     a, b = _pairs(11, 1500)
     inputs = [(a, b)]
@@ -96,6 +101,49 @@ def test_fused_kernel_equals_the_block_kernel_bit_for_bit(kernel, precision):
     if kernel == "hybrid":  # the fallback queue filled and flushed more than once
         assert got.stats.fallbacks > pf.CHUNK
         assert len(a) > 3 * pf.CHUNK and len(a) % pf.CHUNK
+
+
+def _on_triangle(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """``(n,)`` float64 distances of ``points (n, 3)`` to triangles ``tri (n, 3, 3)``."""
+    return np.array([point_triangle_distance_naive(p, t) for p, t in zip(points, tri, strict=True)])
+
+
+@pytest.mark.parametrize("inputs", ["float32", "float64"])
+def test_float32_sweep_decides_bounds_and_falls_back_as_the_exact_kernel(inputs):
+    a, b = _pairs(21, 1500)
+    a, b = a.astype(inputs), b.astype(inputs)
+    x, y = a.astype(np.float32).astype(float), b.astype(np.float32).astype(float)
+    truth = triangle_distances_naive(x, y)[0]  # float64, of what the kernel sees
+    size = np.abs(np.concatenate([x, y], axis=1)).max(axis=(1, 2))
+    tol = 64 * float(np.finfo(np.float32).eps) * (size + truth)
+    d_exact = triangle_distances(a, b, "exact", "float32").distance.astype(float)
+    rng = np.random.default_rng(0)
+    rel = rng.choice([0.0, 1e-6, 1e-3, 0.05, 0.5], len(a)) * rng.choice([-1, 1], len(a))
+    eps = np.maximum(d_exact + rel * size, 0.0)
+    eps_k = eps.astype(np.float32)
+    ex = triangle_distances(a, b, "exact", "float32", eps)
+    exact_contact = ex.distance <= eps_k
+    it = triangle_distances(a, b, "iterative", "float32", eps)
+    for threads in (1, 2):
+        hy = triangle_distances(a, b, "hybrid", "float32", eps, threads=threads)
+        np.testing.assert_array_equal(hy.status, it.status)  # hybrid status: before fallback
+        nc = it.status == PairStatus.NOT_CONVERGED
+        assert hy.stats.fallbacks == nc.sum() > pf.CHUNK  # the queue filled and flushed
+        assert (it.status == PairStatus.CONTACT).sum() > 50  # decisions to check, both ways
+        assert (it.status == PairStatus.NO_CONTACT).sum() > 50
+        for name in FIELDS[:4]:  # certified: the sweep's values; fallbacks: the exact kernel's
+            np.testing.assert_array_equal(getattr(hy, name)[~nc], getattr(it, name)[~nc], name)
+            np.testing.assert_array_equal(getattr(hy, name)[nc], getattr(ex, name)[nc], name)
+    # certified decisions are the exact kernel's
+    np.testing.assert_array_equal((it.status == PairStatus.CONTACT)[~nc], exact_contact[~nc])
+    # bounds bracket the distance; the points realise the upper bound and lie on their triangles
+    upper, lower = it.distance.astype(float), it.lower.astype(float)
+    np.testing.assert_array_less(truth - tol, upper)
+    np.testing.assert_array_less(lower - tol, truth)
+    pa, pb = it.point_a.astype(float), it.point_b.astype(float)
+    np.testing.assert_array_less(np.abs(np.linalg.norm(pa - pb, axis=1) - upper), tol)
+    np.testing.assert_array_less(_on_triangle(pa, x), tol)
+    np.testing.assert_array_less(_on_triangle(pb, y), tol)
 
 
 def test_other_sweep_counts_take_the_block_path():
