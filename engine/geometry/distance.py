@@ -30,9 +30,7 @@ closest points are not unique (parallel faces) the points may be other closest p
 from __future__ import annotations
 
 import enum
-import os
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
 
@@ -42,15 +40,21 @@ from engine.arguments import (
     check_kernel,
     check_pairs,
     check_precision,
-    check_triangles,
     coordinate_limit,
     kernel_constants,
 )
 from engine.errors import InvalidArgumentError
+from engine.geometry.triangle_set import (
+    TriangleSet,
+    check_set_precision,
+    limit_and_tiny,
+    map_chunks,
+    raise_invalid,
+    raw_triangles,
+)
 from engine.kernels.geometry import paired_fused as pf
 from engine.kernels.geometry import triangle_batch as tb
 from engine.kernels.geometry import triangle_paired as tp
-from engine.workers import worker_pool
 
 __all__ = [
     "DEFAULT_ITERATIONS",
@@ -78,7 +82,6 @@ float32: 286 of 320 steps not converged, ``benchmarks/precision.py``). Poses, ve
 forces are float64 whatever this is."""
 DEFAULT_RTOL = 0.01
 """Converged when the certified gap ``U − L`` is at most ``rtol·ε`` (plus rounding)."""
-_SERIAL_PAIRS = 1 << 16  # below this many pairs one thread is faster than a pool
 
 
 class PairStatus(enum.IntEnum):
@@ -159,100 +162,6 @@ class TriangleContacts:
         return len(self.distance)
 
 
-class TriangleSet:
-    """Triangles prepared for the kernels in one precision.
-
-    Each triangle's vertices are rotated (orientation kept) so that vertex 0 sits
-    opposite its longest edge, at its largest angle: there the normal and the
-    barycentric dual basis are best conditioned, which keeps needles accurate in
-    float32. Frames are computed in float64 and then rounded to ``precision``.
-    Results refer to triangles by index, so the rotation is invisible to callers.
-
-    Parameters
-    ----------
-    triangles : (n, 3, 3) float — vertex coordinates per triangle
-    precision : "float32" or "float64"
-    name : str — how error messages refer to the argument
-    threads : int, optional — worker threads of the preparation (default: all cores)
-
-    Attributes
-    ----------
-    dtype : numpy.dtype — float32 or float64, of every array below
-    coords : (9, n) — rows x0 y0 z0 x1 y1 z1 x2 y2 z2
-    frames : (14, n) — per-triangle normal, dual basis, inverse edge lengths, validity,
-        conditioning κ = 1/sin θ (θ the angle at vertex 0)
-    coords_rm, frames_rm : (n, 9), (n, 14) — row-major copies, for gathering
-        arbitrary triangles (one or two cache lines per triangle; made on first use)
-    """
-
-    def __init__(
-        self,
-        triangles: np.ndarray,
-        precision: str = "float64",
-        name: str = "triangles",
-        *,
-        threads: int | None = None,
-    ) -> None:
-        dtype = check_precision(precision)
-        raw = _raw_triangles(triangles, name, dtype)
-        n = len(raw)
-        self.dtype = np.dtype(dtype)
-        self.coords, self.frames = np.empty((9, n), dtype), np.empty((14, n), dtype)
-        limit, tiny = _limit_and_tiny(dtype)
-
-        def run(start: int, stop: int) -> int:
-            return tp.prepare_kernel(raw, start, stop, limit, tiny, self.coords, self.frames)
-
-        if sum(_map_chunks(run, n, n, threads)):
-            _raise_invalid(((triangles, name),), dtype)
-        self._threads = threads
-
-    @cached_property
-    def coords_rm(self) -> np.ndarray:
-        """(n, 9) — row-major copy of :attr:`coords` (made on first use)."""
-        return _row_major(self.coords, getattr(self, "_threads", None))
-
-    @cached_property
-    def frames_rm(self) -> np.ndarray:
-        """(n, 14) — row-major copy of :attr:`frames` (made on first use)."""
-        return _row_major(self.frames, getattr(self, "_threads", None))
-
-    def __len__(self) -> int:
-        return self.coords.shape[1]
-
-    @classmethod
-    def prepared(cls, coords: np.ndarray, frames: np.ndarray) -> TriangleSet:
-        """A set from arrays a TriangleSet already prepared (e.g. rigidly moved copies):
-        ``coords (9, n)``, ``frames (14, n)`` of one float dtype. Not validated."""
-        self = cls.__new__(cls)
-        self.dtype = coords.dtype
-        self.coords = np.ascontiguousarray(coords)
-        self.frames = np.ascontiguousarray(frames)
-        return self
-
-    def subset(self, index: np.ndarray, precision: str) -> TriangleSet:
-        """Triangles ``index (k,)`` (int) in ``precision`` (rounded from this set's arrays)."""
-        dtype = check_precision(precision)
-        return TriangleSet.prepared(
-            self.coords[:, index].astype(dtype), self.frames[:, index].astype(dtype)
-        )
-
-    @classmethod
-    def of(
-        cls,
-        triangles: np.ndarray | TriangleSet,
-        precision: str,
-        name: str = "triangles",
-        *,
-        threads: int | None = None,
-    ) -> TriangleSet:
-        """``triangles`` itself if already prepared in ``precision``, else a new set."""
-        if isinstance(triangles, TriangleSet):
-            _check_set_precision(triangles, precision, name)
-            return triangles
-        return cls(triangles, precision, name, threads=threads)
-
-
 def triangle_distances(
     a: np.ndarray,
     b: np.ndarray,
@@ -292,7 +201,7 @@ def triangle_distances(
     point_a = np.empty((n, 3), dtype)
     point_b = np.empty((n, 3), dtype)
     status = np.empty(n, np.int8)
-    limit = _limit_and_tiny(dtype)[0]
+    limit = limit_and_tiny(dtype)[0]
     if side_a[0] == side_b[0] == 0 and (params[0] == tb.EXACT or params[1] == 1):
         # both raw: preparation fused into the pair loop (one sweep only, see paired_fused)
         raw_a, raw_b = _common_dtype(side_a[1], side_b[1])
@@ -310,9 +219,9 @@ def triangle_distances(
         bad = kernel_fn(*args, eps, start, stop, params, limit, *out, stats)
         return bad, stats
 
-    parts = _map_chunks(run, n, n, threads)
+    parts = map_chunks(run, n, n, threads)
     if sum(bad for bad, _ in parts):
-        _raise_invalid(((a, "a"), (b, "b")), dtype)
+        raise_invalid(((a, "a"), (b, "b")), dtype)
     stats = sum((s for _, s in parts), np.zeros(tb.N_STATS, np.int64))
     return TriangleDistances(
         distance, lower, point_a, point_b, status, KernelStats.from_array(stats)
@@ -394,7 +303,7 @@ def triangle_contacts(
                 return out, count, stats
             capacity = count
 
-    parts = _map_chunks(run, n_outer, work, threads)
+    parts = map_chunks(run, n_outer, work, threads)
     stats = sum((s for _, _, s in parts), np.zeros(tb.N_STATS, np.int64))
     cat = [np.concatenate([o[k][..., :c] for o, c, _ in parts], axis=-1) for k in range(6)]
     return TriangleContacts(
@@ -408,20 +317,6 @@ def triangle_contacts(
 
 
 # ----------------------------------------------------------------------------- helpers
-
-
-def _map_chunks(fn, n_outer: int, work: int, threads: int | None) -> list:
-    """Run ``fn(start, stop)`` over chunks of ``range(n_outer)``; results in order."""
-    if threads is None:
-        threads = os.cpu_count() or 1
-    if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or threads < 1:
-        raise InvalidArgumentError(f"threads must be a positive integer, got {threads!r}")
-    if threads == 1 or work < _SERIAL_PAIRS or n_outer < 2:
-        return [fn(0, n_outer)]
-    bounds = np.linspace(0, n_outer, min(n_outer, 4 * threads) + 1).astype(int)
-    pool = worker_pool(int(threads))
-    spans = [(int(s), int(e)) for s, e in zip(bounds[:-1], bounds[1:], strict=True) if e > s]
-    return [f.result() for f in [pool.submit(fn, s, e) for s, e in spans]]
 
 
 def _epsilon_column(epsilon, n: int, dtype) -> np.ndarray:
@@ -455,35 +350,6 @@ def _parameters(kernel, precision, iterations, rtol) -> tuple:
     return dtype, (mode, np.int64(iterations), dtype(rtol), one, band)
 
 
-def _limit_and_tiny(dtype) -> tuple[float, float]:
-    """``(largest admissible coordinate, sliver threshold)`` as float64, for ``dtype``."""
-    return coordinate_limit(dtype), float(kernel_constants(dtype)[1])
-
-
-def _check_set_precision(s: TriangleSet, precision: str, name: str) -> None:
-    if s.dtype != np.dtype(check_precision(precision)):
-        raise InvalidArgumentError(
-            f"{name} is a {s.dtype.name} TriangleSet but precision={precision!r}"
-        )
-
-
-def _raw_triangles(x, name: str, dtype) -> np.ndarray:
-    """``x`` as a C-contiguous, writable (n, 3, 3) float32 or float64 array for the
-    preparation kernels, without a copy where it already is one (float32 only for a float32
-    ``dtype``). Anything else goes through :func:`check_triangles` (a validated float64
-    copy); the kernels validate the coordinates of the rest."""
-    if (
-        isinstance(x, np.ndarray)
-        and x.ndim == 3
-        and x.shape[1:] == (3, 3)
-        and (x.dtype == np.float64 or x.dtype == dtype == np.float32)
-    ):
-        if x.flags.c_contiguous and x.flags.writeable:
-            return x
-        return np.array(x, order="C")
-    return check_triangles(x, name, dtype)
-
-
 def _common_dtype(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Raw triangle arrays ``x, y (n, 3, 3)`` in one dtype (float32 widened to float64, which
     is exact), so that the fused kernel has one specialisation per dtype."""
@@ -492,37 +358,20 @@ def _common_dtype(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return x.astype(np.float64), y.astype(np.float64)
 
 
-def _row_major(columns: np.ndarray, threads: int | None) -> np.ndarray:
-    """``columns (k, n)`` as a new C-contiguous ``(n, k)`` array."""
-    out = np.empty(columns.shape[::-1], columns.dtype)
-    n = columns.shape[1]
-    _map_chunks(lambda s, e: tp.transpose_kernel(columns, s, e, out), n, 4 * n, threads)
-    return out
-
-
-def _raise_invalid(arguments, dtype) -> None:
-    """Raise :func:`check_triangles`' error for the first invalid raw argument of
-    ``arguments ((value, name), ...)`` (a kernel counted invalid triangles)."""
-    for value, name in arguments:
-        if not isinstance(value, TriangleSet):
-            check_triangles(value, name, dtype)
-    raise InvalidArgumentError("triangles hold non-finite or too large coordinates")
-
-
 def _paired_sides(a, b, precision: str, dtype) -> tuple:
     """``((n, side), (n, side))`` of :func:`triangle_distances`' two arguments: side
     ``(0, raw, empty, empty)`` for raw triangles (prepared in the kernel), ``(1, empty raw,
     coords, frames)`` for a :class:`TriangleSet`. Empty raw arrays take the other side's
     raw dtype, so that mixed calls reuse a compiled specialisation."""
     raws = [
-        None if isinstance(x, TriangleSet) else _raw_triangles(x, name, dtype)
+        None if isinstance(x, TriangleSet) else raw_triangles(x, name, dtype)
         for x, name in ((a, "a"), (b, "b"))
     ]
     raw_dtype = next((r.dtype for r in raws if r is not None), np.dtype(dtype))
     sides = []
     for x, raw, name in zip((a, b), raws, ("a", "b"), strict=True):
         if raw is None:
-            _check_set_precision(x, precision, name)
+            check_set_precision(x, precision, name)
             empty = np.empty((0, 3, 3), raw_dtype)
             sides.append((len(x), (np.int64(1), empty, x.coords, x.frames)))
         else:
