@@ -113,10 +113,7 @@ from engine.kernels.jit import EXACT_JIT, INLINE, JIT
 
 N_COLUMNS = BOX + N_BOX
 # Fields of the tuple returned by :func:`distance_kernel`.
-(
-    OUT_DISTANCE, OUT_FACE_A, OUT_FACE_B, OUT_POINT_A, OUT_POINT_B,
-    OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED, OUT_LARGEST, OUT_PRUNED,
-) = range(10)  # fmt: skip
+OUT_DISTANCE, OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED, OUT_LARGEST, OUT_PRUNED = range(6)
 HEAP_START = 256  # initial capacity of the heap (doubled when full)
 CHILDREN_START = 64  # initial capacity of an unfolded pair's child pairs (grown when needed)
 BOTH = 0.5  # unfold both nodes of a pair when their spheres are this close in size
@@ -410,17 +407,21 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
 
 
 @njit(**JIT)
-def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, orientation_b):
+def distance_kernel(
+    prepared_a, a, b, position_a, orientation_a, position_b, orientation_b, faces, points
+):
     """Minimum distance between body A (node rows ``a``, its triangles in the query dtype
     ``prepared_a`` (float32 or float64); see the module docstring) at ``position_a (3,)``,
     ``orientation_a (4,)`` (unit quaternion w, x, y, z) and body B (``b``) at
     ``position_b``, ``orientation_b`` (float64).
 
-    Returns a tuple (fields ``OUT_*``): the distance (float64, computed in the query
-    dtype), the faces of A and of B attaining it (int64), the closest points on A and on
-    B (two tuples of 3 float64, world frame), then int64 counters: node pairs bounded (the
-    root's and every child pair's), exact distances of leaf pairs evaluated, pairs
-    unfolded, the largest heap, child pairs dropped by their sphere or box bound.
+    Writes ``faces (2,)`` int64: the faces of A and of B attaining the distance, and
+    ``points (6,)`` float64: the closest points on A then on B, world frame (outputs the
+    host allocates: a returned tuple of arrays or of nested tuples costs more to box).
+    Returns a tuple of scalars (fields ``OUT_*``): the distance (float64, computed in the
+    query dtype), then int64 counters: node pairs bounded (the root's and every child
+    pair's), exact distances of leaf pairs evaluated, pairs unfolded, the largest heap,
+    child pairs dropped by their sphere or box bound.
     """
     one = np.ones(1, prepared_a.dtype)[0]
     ulp = np.float64(np.nextafter(one, one + one) - one)  # the query dtype's epsilon
@@ -476,17 +477,9 @@ def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, ori
     d, p, q = exact_point(
         at[COORDS : COORDS + 9], at[FRAMES : FRAMES + 14], best_i, gb, gfb, 0, one
     )
+    faces[0], faces[1] = np.int64(a[best_i, FACE]), np.int64(b[best_j, FACE])
     pa = np.float64(p[0]), np.float64(p[1]), np.float64(p[2])
     pb = np.float64(q[0]), np.float64(q[1]), np.float64(q[2])
-    return (
-        best,
-        np.int64(a[best_i, FACE]),
-        np.int64(b[best_j, FACE]),
-        _to_world(ra, position_a, pa),
-        _to_world(ra, position_a, pb),
-        pairs,
-        exact,
-        unfolded,
-        largest,
-        pruned,
-    )
+    points[0], points[1], points[2] = _to_world(ra, position_a, pa)
+    points[3], points[4], points[5] = _to_world(ra, position_a, pb)
+    return best, pairs, exact, unfolded, largest, pruned
