@@ -101,23 +101,35 @@ def mesh_distance(
     -------
     MeshDistance
     """
-    check_posed_pair(tree_a, pose_a, tree_b, pose_b)
+    # the common case, exact types, costs 4 identity tests; anything else is validated
+    # (0.7 µs of a ~6 µs call)
+    if not (
+        type(tree_a) is SurrogateTree
+        and type(tree_b) is SurrogateTree
+        and type(pose_a) is Pose
+        and type(pose_b) is Pose
+    ):
+        check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     dtype = check_precision(precision)
     rows_a, rows_b = tree_a.views.distance_rows, tree_b.views.distance_rows
     prepared_a = rows_a if dtype is np.float64 else tree_a.views.prepared_rows(precision)
+    # the kernel writes the faces and points into arrays allocated here, and returns
+    # scalars only: three arrays built from returned tuples cost 1.2 µs, this 0.5 µs
+    faces, points = np.empty(2, np.int64), np.empty(6)
     found = ds.distance_kernel(
         prepared_a, rows_a, rows_b,
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation,
+        faces, points,
     )  # fmt: skip
-    distance, face_a, face_b, point_a, point_b, pairs, probes, rounds, largest, pruned = found
+    distance, pairs, probes, rounds, largest, pruned = found
     # the frozen dataclass's __init__ sets each field through object.__setattr__ (1.4 µs
     # of a ~6 µs call); the same fields stored into the new instance's __dict__: 0.5 µs
     result = _new(MeshDistance)
     fields = result.__dict__
     fields["distance"] = distance
-    fields["faces"] = np.array((face_a, face_b))
-    fields["point_a"] = np.array(point_a)
-    fields["point_b"] = np.array(point_b)
+    fields["faces"] = faces
+    fields["point_a"] = points[:3]
+    fields["point_b"] = points[3:]
     fields["node_pairs"] = pairs
     fields["probes"] = probes
     fields["rounds"] = rounds
