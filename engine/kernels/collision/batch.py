@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.contact_merge import contact_kernel
-from engine.kernels.collision.pair_lists import listed_contacts, reference_distances
+from engine.kernels.collision.pair_lists import by_faces, listed_contacts, reference_distances
 from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.geometry.triangle_batch import (
@@ -289,6 +289,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             normals_out[c0:c1] = nrm
             overlaps[c0:c1] = ovl
             if n1 > n0:
+                near = by_faces(near, bank.face[a0:a1], bank.face[b0:b1], trees.face_count[tb])
                 near_out = _grow(near_out, n0, n1)
                 near_distances = _grow(near_distances, n0, n1)
                 near_out[n0:n1] = near

@@ -45,7 +45,7 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
             rows[m] = t
             keys[m] = face_a[node_i[t]] * n_faces_b + face_b[node_j[t]]
             m += 1
-    order = np.argsort(keys[:m])
+    order = key_order(keys[:m])
     weight = 0.5 if ea + eb == 0 else ea / (ea + eb)
     points = np.empty((m, 3))
     normals = np.empty((m, 3))
@@ -79,6 +79,36 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
             out_points[s, c] = r0 * p0 + r1 * p1 + r2 * p2 + position[c]
             out_normals[s, c] = r0 * n0 + r1 * n1 + r2 * n2
     return m, k
+
+
+@njit(**JIT)
+def key_order(keys):
+    """``np.argsort(keys)`` of distinct ``keys (m,)`` int64, without a sort when they are
+    already in order or come as two sorted runs (the pair cache keeps its lists sorted by
+    faces, and a listed query reports its uncertain pairs, then its sure contacts, each in
+    list order): the identity, or one linear merge. Distinct keys have one sorted order,
+    so this is ``np.argsort``'s permutation whichever way it is found."""
+    m = keys.shape[0]
+    cut = 0
+    for t in range(1, m):
+        if keys[t] < keys[t - 1]:
+            if cut > 0:
+                return np.argsort(keys)
+            cut = t
+    order = np.empty(m, np.int64)
+    if cut == 0:
+        for t in range(m):
+            order[t] = t
+        return order
+    i, j = 0, cut
+    for s in range(m):
+        if j == m or (i < cut and keys[i] < keys[j]):
+            order[s] = i
+            i += 1
+        else:
+            order[s] = j
+            j += 1
+    return order
 
 
 @njit(**JIT)

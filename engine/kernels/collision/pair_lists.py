@@ -163,6 +163,25 @@ def reference_distances(bank, rows, pose, near, one, scratch, out):
 
 
 @njit(**JIT)
+def by_faces(near, face_a, face_b, n_faces_b):
+    """``near (m, 2)`` int64 leaf pairs (local rows of A, of B) sorted by their faces
+    ``(face_a[i], face_b[j])`` (a new array): a list kept in this order makes the
+    contacts of a listed query come in :func:`contact_kernel`'s order already
+    (:func:`~engine.kernels.collision.contact_merge.key_order`). The order of a list
+    changes no result: every listed pair is evaluated on its own, and
+    :func:`contact_kernel` orders the pairs by their faces."""
+    m = near.shape[0]
+    keys = np.empty(m, np.int64)
+    for t in range(m):
+        keys[t] = face_a[near[t, 0]] * n_faces_b + face_b[near[t, 1]]
+    order = np.argsort(keys)
+    out = np.empty((m, 2), np.int64)
+    for s in range(m):
+        out[s, 0], out[s, 1] = near[order[s], 0], near[order[s], 1]
+    return out
+
+
+@njit(**JIT)
 def _packed(bank, b0, moving, rotation, shift, like):
     """``(coords (u, 9), frames (u, 14), ε (u,), face (u,))``: B's rows ``b0 + moving[r]``
     packed into row ``r`` and moved into A's frame (coordinates, frames and ε in the

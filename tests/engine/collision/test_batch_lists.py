@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from engine import PairCache, Pose, TreeBank, build_tree, shapes, triangle_distances
+from engine.kernels.collision.contact_merge import key_order
 
 SKIN = 0.5
 
@@ -108,3 +109,38 @@ def test_contacts_of_a_call_that_makes_the_lists_are_the_traversals(trees, preci
     for name in ("pair_offsets", "pairs", "contact_offsets", "points", "normals", "overlaps"):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
     assert (np.diff(want.pair_offsets) > 0).sum() > 10
+
+
+def test_a_new_list_is_sorted_by_faces(trees):
+    """Lists are kept in the order of their face pairs (so that a listed query's contacts
+    need no sort in ``contact_kernel``)."""
+    bank = TreeBank(trees, "float64")
+    queries = random_queries(trees, 40, seed=11)
+    cache = PairCache(skin=SKIN)
+    keys = np.arange(len(queries), dtype=np.int64)
+    bank.find_contacts(*_arrays(trees, queries), cache=cache, keys=keys, threads=1)
+    sorted_lists = 0
+    for e, (tree_a, _, tree_b, _) in enumerate(queries):
+        near = cache.near[cache.offsets[e] : cache.offsets[e + 1]]
+        faces = tree_a.face[near[:, 0]].astype(np.int64) * len(tree_b.views.geometry.face_normals)
+        faces += tree_b.face[near[:, 1]]
+        assert (np.diff(faces) > 0).all()
+        sorted_lists += len(near) > 1
+    assert sorted_lists > 5
+
+
+@pytest.mark.parametrize("case", ["random", "sorted", "two runs", "three runs", "empty", "one"])
+def test_key_order_is_argsorts_permutation(case):
+    rng = np.random.default_rng(3)
+    keys = rng.choice(10_000, size=300, replace=False).astype(np.int64)
+    if case == "sorted":
+        keys = np.sort(keys)
+    elif case == "two runs":
+        keys = np.concatenate([np.sort(keys[:120]), np.sort(keys[120:])])
+    elif case == "three runs":
+        keys = np.concatenate([np.sort(keys[:100]), np.sort(keys[100:200]), np.sort(keys[200:])])
+    elif case == "empty":
+        keys = keys[:0]
+    elif case == "one":
+        keys = keys[:1]
+    np.testing.assert_array_equal(key_order(keys), np.argsort(keys))
