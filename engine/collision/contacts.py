@@ -8,7 +8,7 @@ node pairs**, starting at the two roots, inside one Numba call with flat argumen
 (:func:`~engine.kernels.collision.pair_query.pair_query`: relative pose, margin,
 traversal and merged contacts; the per-tree arguments are cached on ``tree.views``), a
 level per round — unless the node bounds alone show the bodies apart (:func:`far_apart`,
-on the host; the kernel makes the same test first):
+on the host, one bounds-only search that the kernel then skips):
 
 * a node pair whose bounding spheres (:attr:`~engine.trees.views.TreeViews.spheres`) are
   apart, or else whose oriented bounding boxes
