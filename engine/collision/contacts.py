@@ -8,7 +8,7 @@ node pairs**, starting at the two roots, inside one Numba call with flat argumen
 (:func:`~engine.kernels.collision.pair_query.pair_query`: relative pose, margin,
 traversal and merged contacts; the per-tree arguments are cached on ``tree.views``), a
 level per round — unless the node bounds alone show the bodies apart (:func:`far_apart`,
-on the host; the kernel makes the same test first):
+on the host, one bounds-only search that the kernel then skips):
 
 * a node pair whose bounding spheres (:attr:`~engine.trees.views.TreeViews.spheres`) are
   apart, or else whose oriented bounding boxes
@@ -166,17 +166,24 @@ def find_contacts(
         raise InvalidArgumentError(f"iterations must be an integer, got {iterations!r}")
     if iterations < 1:
         raise InvalidArgumentError(f"iterations must be at least 1, got {iterations}")
-    if hierarchy and traversal == "pairs" and far_apart(tree_a, pose_a, tree_b, pose_b):
-        return FAR_APART
+    if hierarchy and traversal == "pairs":
+        if far_apart(tree_a, pose_a, tree_b, pose_b):
+            return FAR_APART
+        # far_apart ran the kernel's bounds-only search, with the same outcome: skipped
+        return _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, int(iterations), -1.0)
     return _search(
         tree_a, pose_a, tree_b, pose_b, kernel, hierarchy, precision, traversal, iterations
     )
 
 
 def _search(tree_a, pose_a, tree_b, pose_b, kernel, hierarchy, precision, traversal, iterations):
-    """:func:`find_contacts` on valid arguments, without the :func:`far_apart` early-out."""
+    """:func:`find_contacts` on valid arguments, without the :func:`far_apart` early-out
+    (the multiresolution kernel runs the same bounds-only search itself)."""
     if hierarchy and traversal == "pairs":
-        return _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, int(iterations))
+        margin = _far_slack(tree_a, pose_a, tree_b, pose_b)[1]
+        return _pair_query(
+            tree_a, pose_a, tree_b, pose_b, kernel, precision, int(iterations), margin
+        )
     rot_a, rotation, shift = relative_pose(
         pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation
     )
@@ -213,10 +220,13 @@ def _parameters(kernel: str, precision: str, iterations: int) -> tuple:
 _LEVELS = 64  # levels whose pair counts a query records
 
 
-def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -> ContactSet:
+def _pair_query(
+    tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations, bounds_margin
+) -> ContactSet:
     """The pair-front search in one
     :func:`~engine.kernels.collision.pair_query.pair_query` call (flat arguments; the
-    per-tree ones cached on ``tree.views``). The contacts are written into fresh buffers
+    per-tree ones cached on ``tree.views``; ``bounds_margin`` float, its bounds-only
+    search's margin, negative to skip that search). The contacts are written into fresh buffers
     with room for as many leaf pairs as either tree's queries last needed
     (``views.leaf_pairs_hint``; run again, with room, when more are found)."""
     views_a, views_b = tree_a.views, tree_b.views
@@ -237,6 +247,7 @@ def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -
             pose_a.orientation,
             pose_b.position,
             pose_b.orientation,
+            bounds_margin,
             *parameters,
             tiny,
             merge,
@@ -250,10 +261,10 @@ def _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, iterations) -
             break
         capacity = 2 * found
         views_a.leaf_pairs_hint = views_b.leaf_pairs_hint = capacity
-    counts = counters.tolist()
+    counts = counters[: tb.N_STATS + min(depth, _LEVELS)].tolist()  # the levels recorded
     stats = _made(
         ContactStats,
-        comparisons_per_level=tuple(counts[tb.N_STATS : tb.N_STATS + min(depth, _LEVELS)]),
+        comparisons_per_level=tuple(counts[tb.N_STATS :]),
         iterative=counts[tb.STAT_ITERATIVE],
         fallbacks=counts[tb.STAT_FALLBACKS],
         unfoldings=unfoldings,
@@ -303,27 +314,25 @@ _FAR_SLACK = 2.0 * MARGIN_ULPS * ULP[np.float32] * 2.0  # twice the float32 quer
 
 
 def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b: Pose) -> bool:
-    """True when the two bodies are apart by more than twice the largest query margin:
-    first whatever the rotations, ``|p_b − p_a| > R_a + R_b + slack``, ``R`` each tree's
+    """True when the node bounds show the two bodies apart by more than ``slack``, twice the
+    largest query margin at this distance (:func:`_far_slack`): first whatever the
+    rotations, ``|p_b − p_a| > R_a + R_b + 2·slack``, ``R`` each tree's
     :attr:`~engine.trees.views.TreeViews.root_reach` (no covered point of a body lies
-    farther than ``R`` from its position) and ``slack`` twice the float32
-    :func:`~engine.kernels.collision.batch.query_margin` at this distance (host floats,
-    about a microsecond); else by the node bounds alone: a short depth-first search from
-    the root pair that drops node pairs whose spheres or boxes are apart by more than the
-    slack (:attr:`~engine.trees.views.TreeViews.bounds_table`,
+    farther than ``R`` from its position; host floats, about a microsecond); else by the
+    node bounds alone: a short depth-first search from the root pair that drops node
+    pairs whose spheres or boxes are apart by more than ``slack``
+    (:attr:`~engine.trees.views.TreeViews.bounds_table`,
     :func:`~engine.kernels.collision.pair_query.roots_apart`: one small kernel call, B
     placed by the search's own arithmetic, at most
-    :data:`~engine.kernels.collision.boxes.SEARCH_BUDGET` node pairs). The
-    multiresolution search makes the same test with its smaller margin first (its
-    outcome is monotone in the margin), so it prunes the root pair too:
-    :func:`find_contacts` returns :data:`FAR_APART` without running it."""
-    ax, ay, az = pose_a.position.tolist()
-    bx, by, bz = pose_b.position.tolist()
-    dx, dy, dz = bx - ax, by - ay, bz - az
-    distance = (dx * dx + dy * dy + dz * dz) ** 0.5
+    :data:`~engine.kernels.collision.boxes.SEARCH_BUDGET` node pairs). The multiresolution
+    kernel makes that search with the same margin and bits when run without the early-out
+    (``_search``), so it then prunes the root pair exactly when this returns True (the
+    first test leaves ``slack`` for rounding before its root-sphere test): :func:`find_contacts`
+    returns :data:`FAR_APART` without running it, and otherwise runs it without that
+    search."""
+    distance, slack = _far_slack(tree_a, pose_a, tree_b, pose_b)
     va, vb = tree_a.views, tree_b.views
-    slack = _FAR_SLACK * (SQRT3 * (va.geometry.extent + vb.geometry.extent) + distance)
-    if distance > va.root_reach + vb.root_reach + slack:
+    if distance > va.root_reach + vb.root_reach + 2.0 * slack:
         return True
     return roots_apart(
         va.bounds_table,
@@ -334,6 +343,18 @@ def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b
         pose_b.orientation,
         slack,
     )
+
+
+def _far_slack(tree_a, pose_a, tree_b, pose_b) -> tuple[float, float]:
+    """``(|p_b − p_a|, slack)`` (floats): the positions' distance and twice the float32
+    :func:`~engine.kernels.collision.batch.query_margin` at it (at least twice any query's
+    margin), the bounds-only search's margin."""
+    ax, ay, az = pose_a.position.tolist()
+    bx, by, bz = pose_b.position.tolist()
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    distance = (dx * dx + dy * dy + dz * dz) ** 0.5
+    extent = tree_a.views.geometry.extent + tree_b.views.geometry.extent
+    return distance, _FAR_SLACK * (SQRT3 * extent + distance)
 
 
 def _contact_setup(tree_a, tree_b, rotation_a, position_a, kernel: str) -> tuple:

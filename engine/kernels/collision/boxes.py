@@ -3,15 +3,19 @@
 A box row is ``(15,)`` float64, as :attr:`~engine.trees.views.TreeViews.boxes` writes them
 (body frame): centre (columns 0–2), three orthonormal unit axes (3–5, 6–8, 9–11) and the
 half-extents along them (12–14). The traversal places B's rows into A's frame once per node
-and query (:func:`place_box`), then :func:`box_apart` tests a node pair after its bounding
+and query (:func:`place_row`), then :func:`separated` tests a node pair after its bounding
 spheres have passed: two convex sets are disjoint by more than ``margin`` when some axis
 separates their projections by more than ``margin`` (the 15 axes of two boxes: 3 + 3 face
 normals and 9 edge cross products; a cross product of unit vectors is no longer than 1, so
 its unnormalised gap exceeding ``margin`` is a true gap of more than ``margin``).
 
-The helpers are called, not inlined: one compiled body serves the traversal and the host's
-root test (:func:`~engine.kernels.collision.pair_query.roots_apart`), so both get the same
-bits for the same boxes and pose.
+The traversal inlines both helpers (a call per node pair costs as much as the test). The
+bounds-only search (:func:`bounds_apart`) is compiled without fast-math and called, not
+inlined: one body, free of contraction wherever it lands, serves the host's early-out
+(:func:`~engine.kernels.collision.pair_query.roots_apart`) and the query kernel's own
+(:func:`~engine.kernels.collision.pair_query.pair_query`), so both reach the same outcome
+for the same bounds, pose and margin. :func:`place_box` and :func:`box_apart` are the
+helpers as called functions (the same no-fast-math bits as the search).
 """
 
 from __future__ import annotations
@@ -19,76 +23,75 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import JIT
+from engine.kernels.jit import EXACT_JIT, INLINE, JIT
 
 BOX_COLUMNS = 15  # centre (3), axes (3 × 3, one per row), half-extents (3)
 TABLE_COLUMNS = 21  # a box (15), a sphere: centre (3), radius; first child, child count
 SEARCH_BUDGET = 256  # node pairs a bounds-only search tests before it gives up
 
 
-@njit(**JIT)
-def place_box(boxes_b, j, rotation, shift, placed, done):
+@njit(**INLINE)
+def place_row(boxes_b, j, rotation, shift, placed_b, done):
     """B's box row ``j`` of ``boxes_b (N, 15)`` float64 moved into A's frame by
     ``x ↦ rotation x + shift`` (``rotation (3, 3)``, ``shift (3,)`` float64), into
-    ``placed[j]`` (``placed (N, 15)`` float64), unless ``done[j]`` (``(N,)`` bool, then
-    set)."""
+    ``placed_b[j]`` (``placed_b (N, 15)`` float64), unless ``done[j]`` (``(N,)`` bool,
+    then set)."""
     if not done[j]:
         for r in range(3):
-            placed[j, r] = (
-                rotation[r, 0] * boxes_b[j, 0]
-                + rotation[r, 1] * boxes_b[j, 1]
-                + rotation[r, 2] * boxes_b[j, 2]
-                + shift[r]
-            )
-        for c in range(3, 12, 3):
-            for r in range(3):
-                placed[j, c + r] = (
-                    rotation[r, 0] * boxes_b[j, c]
-                    + rotation[r, 1] * boxes_b[j, c + 1]
-                    + rotation[r, 2] * boxes_b[j, c + 2]
-                )
-        for c in range(12, 15):
-            placed[j, c] = boxes_b[j, c]
+            r0, r1, r2 = rotation[r, 0], rotation[r, 1], rotation[r, 2]
+            placed_b[j, r] = r0 * boxes_b[j, 0] + r1 * boxes_b[j, 1] + r2 * boxes_b[j, 2] + shift[r]
+            placed_b[j, 3 + r] = r0 * boxes_b[j, 3] + r1 * boxes_b[j, 4] + r2 * boxes_b[j, 5]
+            placed_b[j, 6 + r] = r0 * boxes_b[j, 6] + r1 * boxes_b[j, 7] + r2 * boxes_b[j, 8]
+            placed_b[j, 9 + r] = r0 * boxes_b[j, 9] + r1 * boxes_b[j, 10] + r2 * boxes_b[j, 11]
+            placed_b[j, 12 + r] = boxes_b[j, 12 + r]
         done[j] = True
 
 
-@njit(**JIT)
-def box_apart(boxes_a, i, placed_b, j, margin):
+@njit(**EXACT_JIT)
+def place_box(boxes_b, j, rotation, shift, placed_b, done):
+    """:func:`place_row` as a called function (arguments as there)."""
+    place_row(boxes_b, j, rotation, shift, placed_b, done)
+
+
+@njit(**INLINE)
+def separated(boxes_a, i, placed_b, j, margin):
     """True when A's box row ``i`` of ``boxes_a (Na, 15)`` and B's placed row ``j`` of
     ``placed_b (Nb, 15)`` (both float64, A's frame) are apart by more than ``margin``
-    along one of their 15 separating axes (``margin`` float64 ≥ 0; see the module)."""
+    along one of their 15 separating axes (``margin`` float64 ≥ 0; see the module). A's
+    face normals come first, each with the row of B's axes in A's box coordinates it
+    needs, so a pair that one of them separates costs a third of the test."""
     dx = placed_b[j, 0] - boxes_a[i, 0]
     dy = placed_b[j, 1] - boxes_a[i, 1]
     dz = placed_b[j, 2] - boxes_a[i, 2]
-    a00, a01, a02 = boxes_a[i, 3], boxes_a[i, 4], boxes_a[i, 5]
-    a10, a11, a12 = boxes_a[i, 6], boxes_a[i, 7], boxes_a[i, 8]
-    a20, a21, a22 = boxes_a[i, 9], boxes_a[i, 10], boxes_a[i, 11]
-    ha0, ha1, ha2 = boxes_a[i, 12], boxes_a[i, 13], boxes_a[i, 14]
-    hb0, hb1, hb2 = placed_b[j, 12], placed_b[j, 13], placed_b[j, 14]
-    # the centres' offset and B's axes in A's box coordinates
-    t0 = a00 * dx + a01 * dy + a02 * dz
-    t1 = a10 * dx + a11 * dy + a12 * dz
-    t2 = a20 * dx + a21 * dy + a22 * dz
     b0x, b0y, b0z = placed_b[j, 3], placed_b[j, 4], placed_b[j, 5]
     b1x, b1y, b1z = placed_b[j, 6], placed_b[j, 7], placed_b[j, 8]
     b2x, b2y, b2z = placed_b[j, 9], placed_b[j, 10], placed_b[j, 11]
+    ha0, ha1, ha2 = boxes_a[i, 12], boxes_a[i, 13], boxes_a[i, 14]
+    hb0, hb1, hb2 = placed_b[j, 12], placed_b[j, 13], placed_b[j, 14]
+    # A's face normals: the centres' offset and B's axes in A's box coordinates, a row at
+    # a time
+    a00, a01, a02 = boxes_a[i, 3], boxes_a[i, 4], boxes_a[i, 5]
+    t0 = a00 * dx + a01 * dy + a02 * dz
     r00 = a00 * b0x + a01 * b0y + a02 * b0z
     r01 = a00 * b1x + a01 * b1y + a02 * b1z
     r02 = a00 * b2x + a01 * b2y + a02 * b2z
+    e00, e01, e02 = abs(r00), abs(r01), abs(r02)
+    if abs(t0) > ha0 + hb0 * e00 + hb1 * e01 + hb2 * e02 + margin:
+        return True
+    a10, a11, a12 = boxes_a[i, 6], boxes_a[i, 7], boxes_a[i, 8]
+    t1 = a10 * dx + a11 * dy + a12 * dz
     r10 = a10 * b0x + a11 * b0y + a12 * b0z
     r11 = a10 * b1x + a11 * b1y + a12 * b1z
     r12 = a10 * b2x + a11 * b2y + a12 * b2z
+    e10, e11, e12 = abs(r10), abs(r11), abs(r12)
+    if abs(t1) > ha1 + hb0 * e10 + hb1 * e11 + hb2 * e12 + margin:
+        return True
+    a20, a21, a22 = boxes_a[i, 9], boxes_a[i, 10], boxes_a[i, 11]
+    t2 = a20 * dx + a21 * dy + a22 * dz
     r20 = a20 * b0x + a21 * b0y + a22 * b0z
     r21 = a20 * b1x + a21 * b1y + a22 * b1z
     r22 = a20 * b2x + a21 * b2y + a22 * b2z
-    e00, e01, e02 = abs(r00), abs(r01), abs(r02)
-    e10, e11, e12 = abs(r10), abs(r11), abs(r12)
     e20, e21, e22 = abs(r20), abs(r21), abs(r22)
-    # A's face normals
-    if abs(t0) > ha0 + hb0 * e00 + hb1 * e01 + hb2 * e02 + margin:
-        return True
-    if abs(t1) > ha1 + hb0 * e10 + hb1 * e11 + hb2 * e12 + margin:
-        return True
     if abs(t2) > ha2 + hb0 * e20 + hb1 * e21 + hb2 * e22 + margin:
         return True
     # B's face normals
@@ -118,7 +121,13 @@ def box_apart(boxes_a, i, placed_b, j, margin):
     return abs(t1 * r02 - t0 * r12) > ha0 * e12 + ha1 * e02 + hb0 * e21 + hb1 * e20 + margin
 
 
-@njit(**JIT)
+@njit(**EXACT_JIT)
+def box_apart(boxes_a, i, placed_b, j, margin):
+    """:func:`separated` as a called function (arguments as there)."""
+    return separated(boxes_a, i, placed_b, j, margin)
+
+
+@njit(**EXACT_JIT)
 def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
     """True when the node bounds alone show that no leaf pair of two bodies is within
     ``margin`` (float64) of contact: ``table_* (N, 21)`` float64 rows per node, body frames,
@@ -126,8 +135,11 @@ def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
     first child (19) and the child count (20, 0 for a leaf); B's frame maps to A's by ``x ↦
     rotation x + shift``. A depth-first search from the root pair drops every pair whose
     spheres or boxes are apart by more than ``margin`` and replaces every other by the
-    pairs of its larger node's children (larger sphere; a leaf stands for itself). False as
-    soon as a pair of two leaves remains or more than ``budget`` pairs were tested. The
+    pairs of its larger node's children (larger sphere; a leaf stands for itself), the
+    child pair whose spheres overlap most searched first. False as soon as a pair of two
+    leaves remains or more than ``budget`` pairs were tested: bodies in contact end after
+    about one descent, and the order cannot change the outcome (it is True exactly when the
+    whole search tree, whatever its order, holds no leaf pair and at most ``budget`` pairs). The
     outcome is monotone in ``margin``: with a smaller one every pair dropped is dropped
     too, so a search that ends True within the budget ends True with any smaller margin."""
     stack = np.empty((budget + 1, 2), np.int64)
@@ -143,6 +155,7 @@ def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
         count_a, count_b = np.int64(table_a[i, 20]), np.int64(table_b[j, 20])
         if count_a == 0 and count_b == 0:
             return False  # two leaves that may touch
+        closest, nearest = top, np.inf  # the kept child pair whose spheres overlap most
         if count_a > 0 and (count_b == 0 or table_a[i, 18] >= table_b[j, 18]):
             _place(table_b, j, rotation, shift, placed)
             first = np.int64(table_a[i, 19])
@@ -151,6 +164,9 @@ def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
                 if tests > budget:
                     return False
                 if not _row_pair_apart(table_a, c, placed, 0, margin):
+                    key = _overlap(table_a, c, placed)
+                    if key < nearest:
+                        closest, nearest = top, key
                     stack[top, 0], stack[top, 1] = c, j
                     top += 1
         else:
@@ -161,12 +177,30 @@ def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
                     return False
                 _place(table_b, c, rotation, shift, placed)
                 if not _row_pair_apart(table_a, i, placed, 0, margin):
+                    key = _overlap(table_a, i, placed)
+                    if key < nearest:
+                        closest, nearest = top, key
                     stack[top, 0], stack[top, 1] = i, c
                     top += 1
+        if top > 0 and closest < top - 1:  # popped next
+            for col in range(2):
+                stack[closest, col], stack[top - 1, col] = stack[top - 1, col], stack[closest, col]
     return True
 
 
-@njit(**JIT)
+@njit(**INLINE)
+def _overlap(rows_a, i, placed):
+    """``|c_a − c_b|² − (r_a + r_b)²`` (float64) of the spheres of row ``i`` of ``rows_a``
+    and ``placed[0]`` (:func:`bounds_apart`'s layout, A's frame): smaller where they
+    overlap more, the order in which the search goes on."""
+    dx = rows_a[i, 15] - placed[0, 15]
+    dy = rows_a[i, 16] - placed[0, 16]
+    dz = rows_a[i, 17] - placed[0, 17]
+    reach = rows_a[i, 18] + placed[0, 18]
+    return dx * dx + dy * dy + dz * dz - reach * reach
+
+
+@njit(**INLINE)
 def _place(table_b, j, rotation, shift, out):
     """B's node ``j`` (its box and sphere, columns 0–18 of ``table_b``) moved into A's frame,
     into ``out[0]`` (``(1, 19)`` float64)."""
@@ -194,7 +228,7 @@ def _place(table_b, j, rotation, shift, out):
         out[0, c] = table_b[j, c]
 
 
-@njit(**JIT)
+@njit(**INLINE)
 def _row_pair_apart(rows_a, i, placed, j, margin):
     """Rows ``i`` of ``rows_a`` and ``j`` of ``placed`` (:func:`bounds_apart`'s layout, A's
     frame; box, then sphere) apart by more than ``margin``: their spheres, else their
@@ -205,7 +239,7 @@ def _row_pair_apart(rows_a, i, placed, j, margin):
     reach = rows_a[i, 18] + placed[j, 18] + margin
     if dx * dx + dy * dy + dz * dz > reach * reach:
         return True
-    return box_apart(rows_a, i, placed, j, margin)
+    return separated(rows_a, i, placed, j, margin)
 
 
 @njit(**JIT)
@@ -215,8 +249,8 @@ def box_set_up(boxes_a, boxes_b, rotation, shift):
     float64 and ``done (Nb,)`` bool as :func:`place_box` fills them, B's root placed."""
     boxed = boxes_a.shape[0] > 0 and boxes_b.shape[0] > 0
     nb = boxes_b.shape[0] if boxed else 0
-    placed = np.empty((nb, BOX_COLUMNS))
+    placed_b = np.empty((nb, BOX_COLUMNS))
     done = np.zeros(nb, np.bool_)
     if boxed:
-        place_box(boxes_b, 0, rotation, shift, placed, done)
-    return boxed, placed, done
+        place_box(boxes_b, 0, rotation, shift, placed_b, done)
+    return boxed, placed_b, done

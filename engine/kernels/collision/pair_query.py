@@ -57,6 +57,7 @@ def pair_query(
     orientation_a,
     position_b,
     orientation_b,
+    bounds_margin,
     ulp,
     coarse_mode,
     leaf_mode,
@@ -82,12 +83,14 @@ def pair_query(
     ``position_a (3,)``, ``orientation_a (4,)`` (unit quaternion) and body B
     (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b`` faces; ``boxes_b``,
     ``table_b``) at ``position_b``, ``orientation_b``. When the node bounds alone show the
-    bodies apart (``bounds_apart`` with the query margin, at most ``SEARCH_BUDGET`` node
-    pairs tested) the root pair counts as pruned and nothing else runs; else node pairs
-    are pruned by their bounding spheres, then by their boxes
-    (:func:`~engine.kernels.collision.traversal.traverse`). The arguments come in four
-    groups: A's, B's (each fixed per tree, so the host keeps them as one tuple per tree),
-    the poses, and the parameters.
+    bodies apart by more than ``bounds_margin`` (float64; ``bounds_apart``, at most
+    ``SEARCH_BUDGET`` node pairs tested: the same outcome as :func:`roots_apart` with that
+    margin) the root pair counts as pruned and nothing else runs; a negative
+    ``bounds_margin`` skips that search (the host has run :func:`roots_apart`, which found
+    them not apart). Then node pairs are pruned by their bounding spheres, then by their
+    boxes (:func:`~engine.kernels.collision.traversal.traverse`), with the query margin.
+    The arguments come in four groups: A's, B's (each fixed per tree, so the host keeps
+    them as one tuple per tree), the poses and bounds margin, and the parameters.
 
     ``extent_*``, ``ulp``: the query margin's inputs
     (:func:`~engine.kernels.collision.batch.query_margin`); ``coarse_mode``, ``leaf_mode``
@@ -108,9 +111,10 @@ def pair_query(
     stats = counters[:N_STATS]
     levels = counters[N_STATS:]
     if (
-        table_a.shape[0] > 0
+        bounds_margin >= 0.0
+        and table_a.shape[0] > 0
         and table_b.shape[0] > 0
-        and bounds_apart(table_a, table_b, rotation, shift, margin, SEARCH_BUDGET)
+        and bounds_apart(table_a, table_b, rotation, shift, bounds_margin, SEARCH_BUDGET)
     ):  # the root pair pruned, as the traversal counts it
         stats[STAT_SPHERES] += 1
         none = np.int64(0)
@@ -166,8 +170,9 @@ def roots_apart(table_a, table_b, position_a, orientation_a, position_b, orienta
     two bodies' node bounds ``table_* (N, 21)`` float64 (body frames) at ``position_*
     (3,)``, ``orientation_* (4,)`` (unit quaternions), B placed in A's frame as
     :func:`pair_query` places it (the same
-    :func:`~engine.kernels.collision.batch.relative_pose`); ``margin`` float64. Returns
-    bool: the host's early-out (with a larger margin than the query's, so that
-    :func:`pair_query` then prunes the root pair too)."""
+    :func:`~engine.kernels.collision.batch.relative_pose`); ``margin`` float64 (at least
+    the query margin). Returns bool: the host's early-out, the outcome of
+    :func:`pair_query`'s own search with ``bounds_margin = margin`` (one no-fast-math
+    body: the same bits), so the host can skip that search."""
     _, rotation, shift = relative_pose(position_a, orientation_a, position_b, orientation_b)
     return bounds_apart(table_a, table_b, rotation, shift, margin, SEARCH_BUDGET)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.collision.boxes import BOX_COLUMNS, box_apart, box_set_up, place_box
+from engine.kernels.collision.boxes import BOX_COLUMNS, box_set_up, place_row, separated
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.geometry.triangle_batch import (
@@ -148,7 +148,7 @@ def traverse(
     _centre(spheres_b, centres_b, centred, ZERO, rotation, shift)
     boxed, placed_b, placed = box_set_up(boxes_a, boxes_b, rotation, shift)
     if _far(spheres_a, ZERO, centres_b, spheres_b, ZERO, reach) or (
-        boxed and box_apart(boxes_a, ZERO, placed_b, ZERO, reach)
+        boxed and separated(boxes_a, ZERO, placed_b, ZERO, reach)
     ):  # before any other set-up
         stats[STAT_SPHERES] += 1
         return ZERO, ZERO, ZERO, result_buffers(0, coords_a), np.zeros((0, 2), np.int64)
@@ -226,7 +226,7 @@ def traverse(
                     keep_b[kb] = cb
                     kb += 1
                     if boxed:
-                        place_box(boxes_b, cb, rotation, shift, placed_b, placed)
+                        place_row(boxes_b, cb, rotation, shift, placed_b, placed)
             cross = a1 - a0 > 1 and b1 - b0 > 1  # else the tests above were the pairs'
             if following.shape[0] < r + ka * kb:
                 following = _grown_pairs(following, r, r + ka * kb)
@@ -237,7 +237,7 @@ def traverse(
                     cb = keep_b[v]
                     if cross and _far(spheres_a, ca, centres_b, spheres_b, cb, reach):
                         continue
-                    if boxed and box_apart(boxes_a, ca, placed_b, cb, reach):
+                    if boxed and separated(boxes_a, ca, placed_b, cb, reach):
                         continue
                     following[r, 0], following[r, 1] = ca, cb
                     r += 1
@@ -432,18 +432,8 @@ def _children(face, first_child, child_count, i):
 def _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, margin):
     """Bounding spheres of A's node ``i`` and B's node ``j`` are apart by more than
     ``margin`` (B's centre is moved into A's frame on first use)."""
-    if not centred[j]:
-        x, y, z = spheres_b[j, 0], spheres_b[j, 1], spheres_b[j, 2]
-        for c in range(3):
-            centres_b[j, c] = (
-                rotation[c, 0] * x + rotation[c, 1] * y + rotation[c, 2] * z + shift[c]
-            )
-        centred[j] = True
-    dx = spheres_a[i, 0] - centres_b[j, 0]
-    dy = spheres_a[i, 1] - centres_b[j, 1]
-    dz = spheres_a[i, 2] - centres_b[j, 2]
-    reach = spheres_a[i, 3] + spheres_b[j, 3] + margin
-    return dx * dx + dy * dy + dz * dz > reach * reach
+    _centre(spheres_b, centres_b, centred, j, rotation, shift)
+    return _far(spheres_a, i, centres_b, spheres_b, j, margin)
 
 
 @njit(**INLINE)

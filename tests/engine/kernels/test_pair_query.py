@@ -65,6 +65,7 @@ def _run(ta, pa, tb_, pb, precision, capacity, boxes=True):
         pa.orientation,
         pb.position,
         pb.orientation,
+        contacts._far_slack(ta, pa, tb_, pb)[1],  # the bounds-only search's margin
         *parameters,
         tiny,
         merge,
