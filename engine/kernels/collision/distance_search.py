@@ -69,7 +69,7 @@ Node arrays of a tree (``N`` nodes, node order, root at row 0), row-major:
 
 * ``rows (N, N_COLUMNS)`` float64 — per node: its prepared triangle (columns
   ``COORDS:COORDS + 9``) and frame (``FRAMES:FRAMES + 14``,
-  :class:`~engine.geometry.distance.TriangleSet`), body frame; the bounding sphere of
+  :class:`~engine.geometry.triangle_set.TriangleSet`), body frame; the bounding sphere of
   the covered faces (centre ``CENTRE:CENTRE + 3``, radius ``RADIUS``); ``GAP`` g; then
   ``FIRST`` (first child), ``COUNT`` (child count, 0 for a leaf) and ``FACE`` (the face
   of a leaf, −1 for a surrogate), integers stored exactly; ``EXTENT`` the tree's largest

@@ -20,7 +20,8 @@ rotated (largest angle at vertex 0) and its frame computed in float64 by
   (tests/engine/geometry/test_triangle_paired_fused.py). Measured (512 pairs in cache,
   float32, 1 thread): 34–36 ns a pair with the float64 preparation, 20 without.
 
-Both loops run 8 float32 lanes wide (AVX2), the float64 preparation in pairs of registers.
+Each of these block loops runs 8 float32 lanes wide (AVX2), the float64 preparation in
+pairs of registers.
 Their only reduction is a bool ("every coordinate valid"): an int64 counter of invalid
 triangles made LLVM cap the vector width at 4 (its widest reduction type sets the
 largest width it tries), which cost 25 % (one sweep) and 10 % (exact, then split into a

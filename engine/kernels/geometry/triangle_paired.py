@@ -1,6 +1,6 @@
 """Triangle preparation and the paired distance form, from raw vertex arrays.
 
-Preparation (what :class:`~engine.geometry.distance.TriangleSet` holds): each triangle's
+Preparation (what :class:`~engine.geometry.triangle_set.TriangleSet` holds): each triangle's
 vertices are rotated (orientation kept) so that vertex 0 sits opposite its longest edge
 (the first longest, as ``numpy.argmax`` picks it), and its frame (rows of
 :func:`~engine.kernels.geometry.triangle_batch.frames_kernel`) is computed in float64 from

@@ -315,9 +315,10 @@ def test_far_early_out_never_drops_what_the_kernel_keeps(
 
 
 def test_far_early_out_threshold_and_result():
-    """Just above the spheres' threshold the early-out returns the shared empty result
-    (read-only, the kernel's counters for a pruned root); just below it the root boxes
-    settle it; two spheres touching, the kernel no longer prunes the root."""
+    """Just above the spheres' threshold (the host's first test fires only at twice the
+    slack, so here the look-ahead's sphere test settles it) the early-out returns the shared
+    empty result (read-only, the kernel's counters for a pruned root); just below it the root
+    boxes settle it; two spheres touching, the kernel no longer prunes the root."""
     ta, tb = OFF_CENTRE["a"], OFF_CENTRE["b"]
     reach = ta.views.root_reach + tb.views.root_reach
     slack = _slack(ta, tb, reach)
