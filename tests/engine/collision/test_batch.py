@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from posed_pairs import random_queries
 
 from engine import (
     InvalidArgumentError,
@@ -23,22 +24,6 @@ def trees():
         build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
         build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
     ]
-
-
-def random_queries(trees, count, seed):
-    rng = np.random.default_rng(seed)
-    queries = []
-    for _ in range(count):
-        a, b = (trees[i] for i in rng.integers(len(trees), size=2))
-        qa, qb = rng.normal(size=4), rng.normal(size=4)
-        direction = rng.normal(size=3)
-        reach = (a.bounding_radius + b.bounding_radius) * rng.uniform(0.3, 1.1)
-        pa = Pose(rng.normal(size=3), qa / np.linalg.norm(qa))
-        pb = Pose(
-            pa.position + reach * direction / np.linalg.norm(direction), qb / np.linalg.norm(qb)
-        )
-        queries.append((a, pa, b, pb))
-    return queries
 
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from posed_pairs import random_queries
 
-from engine import PairCache, Pose, TreeBank, build_tree, shapes, triangle_distances
+from engine import PairCache, TreeBank, build_tree, shapes, triangle_distances
 from engine.kernels.collision.contact_merge import key_order
 
 SKIN = 0.5
@@ -22,22 +23,6 @@ def trees():
         build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
         build_tree(shapes.uv_sphere(16, 8, radius=0.8), epsilon=0.02),  # pole fans
     ]
-
-
-def random_queries(trees, count, seed):
-    """``count`` (tree_a, pose_a, tree_b, pose_b), centres 0.3–1.1 bounding radii apart."""
-    rng = np.random.default_rng(seed)
-    queries = []
-    for _ in range(count):
-        a, b = (trees[i] for i in rng.integers(len(trees), size=2))
-        qa, qb, direction = rng.normal(size=4), rng.normal(size=4), rng.normal(size=3)
-        reach = (a.bounding_radius + b.bounding_radius) * rng.uniform(0.3, 1.1)
-        pa = Pose(rng.normal(size=3), qa / np.linalg.norm(qa))
-        pb = Pose(
-            pa.position + reach * direction / np.linalg.norm(direction), qb / np.linalg.norm(qb)
-        )
-        queries.append((a, pa, b, pb))
-    return queries
 
 
 def _arrays(trees, queries):
