@@ -84,8 +84,13 @@ def check_triangles(x, name: str, dtype=np.float64) -> np.ndarray:
 
 
 def coordinate_limit(dtype) -> float:
-    """Largest coordinate magnitude whose squared differences stay finite in ``dtype``."""
-    return float(np.sqrt(np.finfo(dtype).max) * 1e-4)
+    """Largest coordinate magnitude whose squared differences stay finite in ``dtype``.
+
+    The value is representable in ``dtype`` (rounded to it whatever NumPy's promotion rules),
+    so a kernel comparing in ``dtype`` uses exactly the host's limit.
+    """
+    kind = np.dtype(dtype).type
+    return float(kind(float(np.sqrt(np.finfo(dtype).max)) * 1e-4))
 
 
 def check_epsilon(eps, n: int, dtype, name: str) -> np.ndarray:

@@ -207,16 +207,16 @@ def triangle_distances(
         raw_a, raw_b = _common_dtype(side_a[1], side_b[1])
         out = (distance, lower, point_a.reshape(-1), point_b.reshape(-1), status)
         native = params[0] != tb.EXACT and np.dtype(dtype) == np.float32
-        kernel_fn = pf.paired_native_kernel if native else pf.paired_raw_kernel
-        args = (raw_a.reshape(-1), raw_b.reshape(-1))
+        kernel_fn = pf.paired_raw_kernel
+        args, flags = (raw_a.reshape(-1), raw_b.reshape(-1)), (native,)
     else:
         out = (distance, lower, point_a, point_b, status)
         kernel_fn = tp.paired_kernel
-        args = (side_a, side_b)
+        args, flags = (side_a, side_b), ()
 
     def run(start: int, stop: int) -> tuple:
         stats = np.zeros(tb.N_STATS, np.int64)
-        bad = kernel_fn(*args, eps, start, stop, params, limit, *out, stats)
+        bad = kernel_fn(*args, eps, start, stop, params, limit, *flags, *out, stats)
         return bad, stats
 
     parts = map_chunks(run, n, n, threads)

@@ -12,7 +12,7 @@ rotated (largest angle at vertex 0) and its frame computed in float64 by
 * :func:`exact_block`: preparation (what the exact kernel reads: no inverse edge lengths
   nor conditioning, 4 divisions and 1 square root fewer per triangle) and the exact kernel
   in one loop;
-* :func:`native_block` (:func:`paired_native_kernel`, the float32 one-sweep modes): the
+* :func:`native_block` (``native=True``, the float32 one-sweep modes): the
   preparation in the kernel precision (:func:`load_native`) and face points rebuilt from
   their barycentrics (:func:`_closest_native`), so that a float32 frame's larger error
   (barycentrics off by ``ulp·κ²`` instead of ``ulp·κ``) costs convergence, never a bound.
@@ -351,59 +351,20 @@ def _enqueue(raw_a, raw_b, t0, t1, c, lim, queue, distance, lower, pa, pb, statu
 
 @njit(**JIT)
 def paired_raw_kernel(
-    raw_a, raw_b, eps, start, stop, params, limit, distance, lower, pa, pb, status, stats
+    raw_a, raw_b, eps, start, stop, params, limit, native, distance, lower, pa, pb, status, stats
 ):
     """Distances of pairs ``(raw_a[t], raw_b[t])``, ``start ≤ t < stop``, one sweep.
 
     ``raw_a, raw_b (9n,)`` float32 or float64 (one dtype; flat views of ``(n, 3, 3)``);
     ``eps (n,)`` and every float output in the kernel dtype;
     ``params = (mode, iterations, rtol, one, band_factor)`` (``iterations`` is taken as 1);
-    ``limit`` float64, the largest admissible coordinate.
+    ``limit`` float64, the largest admissible coordinate; ``native`` (one-sweep modes only:
+    iterative, hybrid): prepare in the kernel precision (:func:`native_block`) instead of
+    float64. Hybrid fallbacks are resolved by :func:`exact_block` (float64 preparation)
+    either way: they equal the exact kernel's results bit for bit.
     Outputs ``distance, lower (n,)``, ``pa, pb (3n,)`` (flat views of ``(n, 3)`` points),
     ``status (n,)`` int8, as in ``triangle_paired.paired_kernel``; ``stats (N_STATS,)``
     int64, added to. Returns the number of invalid triangles (outputs are then meaningless).
-    """
-    mode, iterations, rtol, one, band_factor = params
-    tiny = np.float64(band_factor)
-    lim = (limit, tiny, one)
-    consts = (one, rtol, band_factor)
-    queue = _fallback_queue(raw_a, raw_b, eps.dtype)
-    bad = ZERO
-    c = ZERO
-    stats[STAT_PAIRS] += stop - start
-    for t0 in range(start, stop, CHUNK):
-        t1 = min(t0 + CHUNK, stop)
-        ra, rb, e = raw_a[9 * t0 : 9 * t1], raw_b[9 * t0 : 9 * t1], eps[t0:t1]
-        out = (
-            distance[t0:t1],
-            lower[t0:t1],
-            status[t0:t1],
-            pa[3 * t0 : 3 * t1],
-            pb[3 * t0 : 3 * t1],
-        )
-        if mode == EXACT:
-            bad += exact_block(ra, rb, t1 - t0, limit, tiny, one, e, *out)
-            continue
-        bad += iterative_block(ra, rb, t1 - t0, limit, tiny, consts, e, *out)
-        stats[STAT_ITERATIVE] += t1 - t0
-        if mode == HYBRID:
-            c = _enqueue(
-                raw_a, raw_b, t0, t1, c, lim, queue, distance, lower, pa, pb, status, stats
-            )
-    if c > 0:
-        _resolve(c, lim, queue, distance, lower, pa, pb)
-        stats[STAT_FALLBACKS] += c
-    return bad
-
-
-@njit(**JIT)
-def paired_native_kernel(
-    raw_a, raw_b, eps, start, stop, params, limit, distance, lower, pa, pb, status, stats
-):
-    """:func:`paired_raw_kernel` for the one-sweep modes (iterative, hybrid) with the
-    preparation in the kernel precision (:func:`native_block`); arguments and outputs as
-    there. Hybrid fallbacks are resolved as there, by :func:`exact_block` (float64
-    preparation): they equal the exact kernel's results bit for bit.
     """
     mode, iterations, rtol, one, band_factor = params
     tiny = np.float64(band_factor)
@@ -424,7 +385,13 @@ def paired_native_kernel(
             pa[3 * t0 : 3 * t1],
             pb[3 * t0 : 3 * t1],
         )
-        bad += native_block(ra, rb, t1 - t0, limit_k, band_factor, consts, e, *out)
+        if mode == EXACT:
+            bad += exact_block(ra, rb, t1 - t0, limit, tiny, one, e, *out)
+            continue
+        if native:
+            bad += native_block(ra, rb, t1 - t0, limit_k, band_factor, consts, e, *out)
+        else:
+            bad += iterative_block(ra, rb, t1 - t0, limit, tiny, consts, e, *out)
         stats[STAT_ITERATIVE] += t1 - t0
         if mode == HYBRID:
             c = _enqueue(
