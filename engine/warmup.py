@@ -73,16 +73,19 @@ def _tree_part() -> None:
 
 
 def _triangle_part() -> None:
-    """The triangle-set API (distances from sets and from raw float64 arrays, all-pairs and
-    listed contacts) and :func:`mesh_distance`, in both precisions."""
+    """The triangle-set API (distances from sets and from raw float64 and float32 arrays,
+    all-pairs and listed contacts) and :func:`mesh_distance`, in both precisions."""
     tree = build_tree(box(), 0.05)
     near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
+    tri32 = tri.astype(np.float32)
     for precision in PRECISIONS:
         sa = TriangleSet(tri, precision)
         for kernel in KERNELS:
             triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
             triangle_distances(tri, tri, kernel, precision, 0.1, threads=1)  # raw: fused kernel
+            if precision == "float32":  # float32 meshes as they come
+                triangle_distances(tri32, tri32, kernel, precision, 0.1, threads=1)
             triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1

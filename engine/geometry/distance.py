@@ -362,12 +362,13 @@ def _paired_sides(a, b, precision: str, dtype) -> tuple:
     """``((n, side), (n, side))`` of :func:`triangle_distances`' two arguments: side
     ``(0, raw, empty, empty)`` for raw triangles (prepared in the kernel), ``(1, empty raw,
     coords, frames)`` for a :class:`TriangleSet`. Empty raw arrays take the other side's
-    raw dtype, so that mixed calls reuse a compiled specialisation."""
+    raw dtype, or float64 (NumPy's default) when both sides are sets, so that sets, mixed
+    calls and multi-sweep raw calls reuse one compiled specialisation."""
     raws = [
         None if isinstance(x, TriangleSet) else raw_triangles(x, name, dtype)
         for x, name in ((a, "a"), (b, "b"))
     ]
-    raw_dtype = next((r.dtype for r in raws if r is not None), np.dtype(dtype))
+    raw_dtype = next((r.dtype for r in raws if r is not None), np.dtype(np.float64))
     sides = []
     for x, raw, name in zip((a, b), raws, ("a", "b"), strict=True):
         if raw is None:
