@@ -13,6 +13,8 @@ a few processes; with ``workers=1`` everything runs here, in order.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import multiprocessing
 import os
 import time
@@ -102,8 +104,27 @@ def default_workers() -> int:
     return max(1, min(len(PARTS), os.cpu_count() or 1))
 
 
+#: Garbage-collector thresholds while compiling. Numba's compiler allocates many objects
+#: that outlive the youngest generation: with Python's default (700, 10, 10) the collector
+#: took about 20 % of a cold warm-up's CPU time (measured: part 1 364 → 284 CPU-seconds,
+#: peak memory 1.08 → 1.14 GB; with the collector off, 297 s and 2.2 GB).
+COMPILE_GC_THRESHOLDS = (100_000, 20, 100)
+
+
+@contextlib.contextmanager
+def _compile_gc():
+    """Raise the collector's thresholds to :data:`COMPILE_GC_THRESHOLDS`, then restore them."""
+    before = gc.get_threshold()
+    gc.set_threshold(*COMPILE_GC_THRESHOLDS)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*before)
+
+
 def _run_part(index: int) -> None:
-    PARTS[index]()
+    with _compile_gc():
+        PARTS[index]()
 
 
 def warmup(workers: int | None = None) -> float:
@@ -118,6 +139,11 @@ def warmup(workers: int | None = None) -> float:
     workers = default_workers() if workers is None else workers
     if not 1 <= workers <= len(PARTS):
         raise InvalidArgumentError(f"workers must be 1 … {len(PARTS)}, got {workers}")
+    with _compile_gc():
+        return _warm(workers)
+
+
+def _warm(workers: int) -> float:
     start = time.perf_counter()
     rest = PARTS
     if workers > 1:
