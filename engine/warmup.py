@@ -3,7 +3,8 @@
 A cold compile is CPU-bound and single-threaded per process (about 5 minutes on one core
 of a 2-core EPYC VM). :func:`warmup` therefore splits the work into *parts* that compile
 mostly disjoint kernels (part 0 builds trees with every fit and runs the contact searches
-and the scene steps; part 1 the triangle-set kernels and :func:`mesh_distance`) and, given
+and the scene steps; part 1 the triangle-set kernels and :func:`mesh_distance`), ordered so
+that a kernel both need is mostly compiled by one and loaded by the other, and, given
 ``workers > 1``, compiles all parts but the first in spawned processes while this process
 compiles the first. The other processes write their machine code into the shared on-disk
 cache (``$NUMBA_CACHE_DIR``), and this process then runs those parts too, loading it.
@@ -47,11 +48,13 @@ def _tree_part() -> None:
         build_tree(box(), 0.05, fit=fit)
     tree = build_tree(box(), 0.05)
     near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
-    for precision in PRECISIONS:
+    for precision in PRECISIONS:  # first: _triangle_part compiles the flat search meanwhile
         for kernel in KERNELS:
             find_contacts_batch(
                 [(tree, Pose.identity(), tree, near)], kernel=kernel, precision=precision
             )
+    for precision in PRECISIONS:
+        for kernel in KERNELS:
             for hierarchy in (True, False):
                 find_contacts(
                     tree,
@@ -77,8 +80,6 @@ def _tree_part() -> None:
 def _triangle_part() -> None:
     """The triangle-set API (distances from sets and from raw float64 and float32 arrays,
     all-pairs and listed contacts) and :func:`mesh_distance`, in both precisions."""
-    tree = build_tree(box(), 0.05)
-    near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
     tri32 = tri.astype(np.float32)
     for precision in PRECISIONS:
@@ -92,6 +93,10 @@ def _triangle_part() -> None:
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
             )
+    # last: _tree_part compiles the tree build meanwhile
+    tree = build_tree(box(), 0.05)
+    near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    for precision in PRECISIONS:
         mesh_distance(tree, Pose.identity(), tree, near, precision=precision)
 
 
