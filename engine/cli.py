@@ -40,7 +40,10 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("info", help="versions, CPU and kernel cache")
     warm = sub.add_parser("warmup", help="compile every kernel (or load it from the cache)")
     warm.add_argument(
-        "--workers", type=int, default=None, help="processes compiling at once (default: 2 or 1)"
+        "--workers",
+        type=int,
+        default=None,
+        help="processes compiling at once (default: 1 on a warm cache, else 2 or 1 per CPU)",
     )
     args = parser.parse_args(argv)
     if args.command == "info":

@@ -16,12 +16,16 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import hashlib
 import multiprocessing
 import os
+import platform
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
+import numba
 import numpy as np
 
 from engine.arguments import KERNELS, PRECISIONS
@@ -38,7 +42,7 @@ from engine.scene import SCHEMES, Scene
 from engine.trees.build import build_tree
 from engine.trees.surrogates import FITS
 
-__all__ = ["PARTS", "default_workers", "warmup"]
+__all__ = ["PARTS", "default_workers", "warm_stamp", "warmup"]
 
 
 def _tree_part() -> None:
@@ -105,8 +109,31 @@ PARTS = (_tree_part, _triangle_part)
 
 
 def default_workers() -> int:
-    """Processes :func:`warmup` uses by default: one per part, at most one per CPU."""
+    """Processes :func:`warmup` uses by default: one when :func:`warm_stamp` exists (every
+    kernel loads from the cache: another process would only load part of it again), else
+    one per part, at most one per CPU."""
+    if warm_stamp().exists():
+        return 1
     return max(1, min(len(PARTS), os.cpu_count() or 1))
+
+
+def warm_stamp() -> Path:
+    """The file a completed :func:`warmup` leaves in the kernel cache directory
+    (``numba.config.CACHE_DIR``, which already names the kernels' source hash); its name
+    hashes this module's source, Python's and Numba's versions, so a new warm-up list or
+    compiler does not count as warm."""
+    digest = hashlib.sha256(Path(__file__).read_bytes())
+    digest.update(f"{platform.python_version()} {numba.__version__}".encode())
+    return Path(numba.config.CACHE_DIR) / f"warmup-{digest.hexdigest()[:16]}.done"
+
+
+def _leave_stamp() -> None:
+    stamp = warm_stamp()
+    try:
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        stamp.touch()
+    except OSError:  # a read-only cache: every start then uses the default for a cold one
+        pass
 
 
 #: Garbage-collector thresholds while compiling. Numba's compiler allocates many objects
@@ -138,14 +165,17 @@ def warmup(workers: int | None = None) -> float:
     Parameters
     ----------
     workers : processes compiling at once (this one included), 1 … ``len(PARTS)``;
-        ``None``: :func:`default_workers`. Parts 1 … ``workers − 1`` first run in spawned
-        processes, which share this process's ``NUMBA_CACHE_DIR``.
+        ``None``: :func:`default_workers` (1 once a warm-up has completed on this cache).
+        Parts 1 … ``workers − 1`` first run in spawned processes, which share this
+        process's ``NUMBA_CACHE_DIR``.
     """
     workers = default_workers() if workers is None else workers
     if not 1 <= workers <= len(PARTS):
         raise InvalidArgumentError(f"workers must be 1 … {len(PARTS)}, got {workers}")
     with _compile_gc():
-        return _warm(workers)
+        seconds = _warm(workers)
+    _leave_stamp()
+    return seconds
 
 
 def _warm(workers: int) -> float:

@@ -45,7 +45,10 @@ class Settings(BaseSettings):
         None,
         ge=1,
         le=2,
-        description="processes compiling kernels at start-up (default: 2, or 1 on one CPU)",
+        description=(
+            "processes compiling kernels at start-up (default: 1 once a warm-up completed on"
+            " this kernel cache, else 2, or 1 on one CPU)"
+        ),
     )
     tree_cache: int = Field(256, ge=1, description="surrogate trees kept in memory")
     build_wait: float = Field(
