@@ -93,6 +93,7 @@ def _triangle_part() -> None:
             triangle_distances(tri, tri, kernel, precision, 0.1, threads=1)  # raw: fused kernel
             if precision == "float32":  # float32 meshes as they come
                 triangle_distances(tri32, tri32, kernel, precision, 0.1, threads=1)
+                TriangleSet(tri32, precision)
             triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
