@@ -88,12 +88,12 @@ def _triangle_part() -> None:
     tri32 = tri.astype(np.float32)
     for precision in PRECISIONS:
         sa = TriangleSet(tri, precision)
+        TriangleSet(tri.astype(precision), precision)  # prepared from float32 or float64
         for kernel in KERNELS:
             triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
             triangle_distances(tri, tri, kernel, precision, 0.1, threads=1)  # raw: fused kernel
             if precision == "float32":  # float32 meshes as they come
                 triangle_distances(tri32, tri32, kernel, precision, 0.1, threads=1)
-                TriangleSet(tri32, precision)
             triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
