@@ -24,7 +24,7 @@ from engine.kernels.geometry.triangle_batch import (
     listed_kernel,
     result_buffers,
 )
-from engine.kernels.geometry.triangle_points import exact_paired, exact_points
+from engine.kernels.geometry.triangle_points import certified_points, exact_paired
 from engine.kernels.jit import JIT
 
 SURE_BLOCK = 32
@@ -51,7 +51,7 @@ def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scrat
     :func:`~engine.kernels.collision.rigid.move_kernel` as in the traversal (only those
     rows, packed), so each gives the traversal's bits — except that, outside
     ``ITERATIVE`` mode, a pair with δ < −a is certainly in contact, which every path of
-    ``listed_kernel`` then records as ``exact_point``'s distance and points with status
+    ``listed_kernel`` then records with ``certified_points``' distance and points and status
     ``CONTACT``: it gets exactly that, without the iterative kernel's decision, appended
     after the others (:func:`contact_kernel` orders pairs by their faces, so the
     contacts do not depend on the order of ``found``). ``scratch = (local, buffers,
@@ -104,21 +104,23 @@ def _sure_contacts(rm, index_a, index_b, m, one, work, out, n):
     """Append pairs ``(index_a[t], index_b[t])``, ``t < m``, of rows of ``rm = (A's
     coords, frames, B's coords, frames)`` to ``out`` after its first ``n`` rows (room
     assumed) as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` records a
-    contact: ``exact_point``'s values (from the vectorised ``exact_points``, ``SURE_BLOCK``
+    contact: :func:`~engine.kernels.geometry.triangle_points.certified_points`' values (the
+    vertex–vertex certificate, ``exact_points`` on the pairs it refuses; ``SURE_BLOCK``
     gathered pairs at a time), status ``CONTACT``; returns the count."""
     coords_a, frames_a, coords_b, frames_b = rm
     ga, gfa, gb, gfb = work[0], work[1], work[2], work[3]
-    r0, r1, r2, r3, r4, r5, r6 = work[9]
+    rows, final = work[9], work[10]
+    v0, v1, v2, v3, v4, v5, v6 = final
     out_i, out_j, out_d, out_p, out_q, out_s = out
     for t0 in range(0, m, SURE_BLOCK):
         c = min(SURE_BLOCK, m - t0)
         gather_rows(coords_a, frames_a, index_a[t0:], c, ga, gfa)
         gather_rows(coords_b, frames_b, index_b[t0:], c, gb, gfb)
-        exact_points(ga, gfa, gb, gfb, c, one, r0, r1, r2, r3, r4, r5, r6)
+        certified_points(ga, gfa, gb, gfb, c, one, final, rows)
         for k in range(c):
-            out_i[n], out_j[n], out_d[n] = index_a[t0 + k], index_b[t0 + k], r0[k]
-            out_p[0, n], out_p[1, n], out_p[2, n] = r1[k], r2[k], r3[k]
-            out_q[0, n], out_q[1, n], out_q[2, n] = r4[k], r5[k], r6[k]
+            out_i[n], out_j[n], out_d[n] = index_a[t0 + k], index_b[t0 + k], v0[k]
+            out_p[0, n], out_p[1, n], out_p[2, n] = v1[k], v2[k], v3[k]
+            out_q[0, n], out_q[1, n], out_q[2, n] = v4[k], v5[k], v6[k]
             out_s[n] = CONTACT
             n += 1
     return n
