@@ -93,7 +93,7 @@ def batched_contacts(
     counters = dict.fromkeys(SEARCH_COUNTERS, 0)
     for name, column in _BATCH_COUNTERS:
         counters[name] = int(totals[column])
-    counters["triangle_pairs"] = len(batch.pairs)
+    counters["triangle_pairs"] = int(batch.pair_offsets[-1])  # batch.pairs is joined lazily
     return Contacts(
         pairs, batch.contact_offsets, batch.points, batch.normals, batch.overlaps, counters
     )

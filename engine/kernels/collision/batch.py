@@ -180,7 +180,15 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     near_offsets = np.zeros(k + 1, np.int64)
     rotations = np.empty((k, 3, 3))
     shifts = np.empty((k, 3))
-    pairs = np.empty((64, 2), np.int64)
+    # a listed query's face pairs are a subset of its list: room for all of them at once
+    # (touched only where written), so a chunk of the aligned grid (~2 M rows) does not
+    # grow by doubling (each copy and page fault of 16-byte rows cost as much as the rows)
+    room = 64
+    for t in range(k):
+        e = lists.slot[start + t] if lists.slot.shape[0] > 0 else -1
+        if e >= 0:
+            room += lists.offsets[e + 1] - lists.offsets[e]
+    pairs = np.empty((room, 2), np.int64)
     near_out = np.empty((64, 2), np.int64)
     near_distances = np.empty(64)
     points = np.empty((64, 3))

@@ -50,12 +50,24 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
     points = np.empty((m, 3))
     normals = np.empty((m, 3))
     overlaps = np.empty(m)
+    last = -1  # the row before, when its values can be reused (its points apart)
     for s in range(m):
         t = rows[order[s]]
         fa = face_a[node_i[t]]
         out_pairs[s, 0], out_pairs[s, 1] = fa, face_b[node_j[t]]
+        if last >= 0 and _same_row(point_a, point_b, distance, t, last):
+            # the same values as the row before: the same contact point, normal, overlap
+            for c in range(3):
+                points[s, c], normals[s, c] = points[s - 1, c], normals[s - 1, c]
+            overlaps[s] = overlaps[s - 1]
+            continue
+        last = -1
         p0, p1, p2 = _f64(point_a[0, t]), _f64(point_a[1, t]), _f64(point_a[2, t])
-        g0, g1, g2 = _f64(point_b[0, t]) - p0, _f64(point_b[1, t]) - p1, _f64(point_b[2, t]) - p2
+        g0, g1, g2 = (
+            _f64(point_b[0, t]) - p0,
+            _f64(point_b[1, t]) - p1,
+            _f64(point_b[2, t]) - p2,
+        )
         points[s, 0], points[s, 1], points[s, 2] = (
             p0 + weight * g0,
             p1 + weight * g1,
@@ -65,7 +77,12 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
         # decide on the points' own gap: a (float32) distance can be positive while
         # the two points round to the same coordinates
         if length > tiny:
-            normals[s, 0], normals[s, 1], normals[s, 2] = g0 / length, g1 / length, g2 / length
+            normals[s, 0], normals[s, 1], normals[s, 2] = (
+                g0 / length,
+                g1 / length,
+                g2 / length,
+            )
+            last = t
         else:
             for c in range(3):
                 normals[s, c] = normals_a[fa, c]
@@ -79,6 +96,20 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
             out_points[s, c] = r0 * p0 + r1 * p1 + r2 * p2 + position[c]
             out_normals[s, c] = r0 * n0 + r1 * n1 + r2 * n2
     return m, k
+
+
+@njit(**JIT)
+def _same_row(point_a, point_b, distance, t, u):
+    """Rows ``t`` and ``u`` of a search's results hold the same points and distance."""
+    return (
+        distance[t] == distance[u]
+        and point_a[0, t] == point_a[0, u]
+        and point_a[1, t] == point_a[1, u]
+        and point_a[2, t] == point_a[2, u]
+        and point_b[0, t] == point_b[0, u]
+        and point_b[1, t] == point_b[1, u]
+        and point_b[2, t] == point_b[2, u]
+    )
 
 
 @njit(**JIT)
@@ -130,13 +161,19 @@ def _merge(points, normals, overlaps, radius, out_points, out_normals, out_overl
     (distance h < √(h² + s²)).
     """
     m = points.shape[0]
-    order = np.argsort(-overlaps, kind="mergesort")
+    order = _deepest_first(overlaps)
     label = np.empty(m, np.int64)
     first = np.empty((m, 3))  # each cluster's first point
     k = 0
     limit = radius * radius
     for t in range(m):
         s = order[t]
+        if t > 0 and limit > 0 and _same_point(points, s, order[t - 1]):
+            # the point before it, again: it joined the nearest cluster (the set of
+            # clusters is the same now), or started one, now at distance 0 < limit: this
+            # one joins the same
+            label[s] = label[order[t - 1]]
+            continue
         best, best_d2 = -1, limit
         for c in range(k):
             d2 = 0.0
@@ -168,3 +205,23 @@ def _merge(points, normals, overlaps, radius, out_points, out_normals, out_overl
         for x in range(3):
             out_points[c, x] /= count[c]
     return k
+
+
+@njit(**JIT)
+def _deepest_first(overlaps):
+    """``np.argsort(-overlaps, kind="mergesort")`` (stable) of ``overlaps (m,)``, without a
+    sort when they already come in non-increasing order (the identity)."""
+    m = overlaps.shape[0]
+    for t in range(m):
+        if overlaps[t] != overlaps[t] or (t > 0 and overlaps[t] > overlaps[t - 1]):
+            return np.argsort(-overlaps, kind="mergesort")
+    return np.arange(m)
+
+
+@njit(**JIT)
+def _same_point(points, s, u):
+    return (
+        points[s, 0] == points[u, 0]
+        and points[s, 1] == points[u, 1]
+        and points[s, 2] == points[u, 2]
+    )

@@ -24,7 +24,11 @@ from engine.kernels.geometry.triangle_batch import (
     listed_kernel,
     result_buffers,
 )
-from engine.kernels.geometry.triangle_points import exact_paired, exact_points
+from engine.kernels.geometry.triangle_points import (
+    exact_paired,
+    exact_points,
+    vertex_points,
+)
 from engine.kernels.jit import JIT
 
 SURE_BLOCK = 32
@@ -51,7 +55,7 @@ def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scrat
     :func:`~engine.kernels.collision.rigid.move_kernel` as in the traversal (only those
     rows, packed), so each gives the traversal's bits — except that, outside
     ``ITERATIVE`` mode, a pair with δ < −a is certainly in contact, which every path of
-    ``listed_kernel`` then records as ``exact_point``'s distance and points with status
+    ``listed_kernel`` then records with ``certified_points``' distance and points and status
     ``CONTACT``: it gets exactly that, without the iterative kernel's decision, appended
     after the others (:func:`contact_kernel` orders pairs by their faces, so the
     contacts do not depend on the order of ``found``). ``scratch = (local, buffers,
@@ -104,24 +108,61 @@ def _sure_contacts(rm, index_a, index_b, m, one, work, out, n):
     """Append pairs ``(index_a[t], index_b[t])``, ``t < m``, of rows of ``rm = (A's
     coords, frames, B's coords, frames)`` to ``out`` after its first ``n`` rows (room
     assumed) as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` records a
-    contact: ``exact_point``'s values (from the vectorised ``exact_points``, ``SURE_BLOCK``
-    gathered pairs at a time), status ``CONTACT``; returns the count."""
+    contact: :func:`~engine.kernels.geometry.triangle_points.certified_points`' values,
+    status ``CONTACT``; returns the count. ``SURE_BLOCK`` pairs at a time: their
+    coordinates gathered for the vertex–vertex certificate
+    (:func:`~engine.kernels.geometry.triangle_points.vertex_points`), then only the pairs
+    it refuses gathered with their frames for ``exact_points``."""
     coords_a, frames_a, coords_b, frames_b = rm
-    ga, gfa, gb, gfb = work[0], work[1], work[2], work[3]
+    ga, gfa, gb, gfb, refused_a, refused_b = (
+        work[0],
+        work[1],
+        work[2],
+        work[3],
+        work[4],
+        work[5],
+    )
     r0, r1, r2, r3, r4, r5, r6 = work[9]
+    v0, v1, v2, v3, v4, v5, v6 = work[10]
     out_i, out_j, out_d, out_p, out_q, out_s = out
     for t0 in range(0, m, SURE_BLOCK):
         c = min(SURE_BLOCK, m - t0)
-        gather_rows(coords_a, frames_a, index_a[t0:], c, ga, gfa)
-        gather_rows(coords_b, frames_b, index_b[t0:], c, gb, gfb)
-        exact_points(ga, gfa, gb, gfb, c, one, r0, r1, r2, r3, r4, r5, r6)
+        _gather_coords(coords_a, index_a, t0, c, ga)
+        _gather_coords(coords_b, index_b, t0, c, gb)
+        vertex_points(ga, gb, c, one, v0, v1, v2, v3, v4, v5, v6)
+        e = ZERO
         for k in range(c):
-            out_i[n], out_j[n], out_d[n] = index_a[t0 + k], index_b[t0 + k], r0[k]
-            out_p[0, n], out_p[1, n], out_p[2, n] = r1[k], r2[k], r3[k]
-            out_q[0, n], out_q[1, n], out_q[2, n] = r4[k], r5[k], r6[k]
+            if not v0[k] >= 0:
+                refused_a[e], refused_b[e] = index_a[t0 + k], index_b[t0 + k]
+                e += 1
+        if e > 0:
+            gather_rows(coords_a, frames_a, refused_a, e, ga, gfa)
+            gather_rows(coords_b, frames_b, refused_b, e, gb, gfb)
+            exact_points(ga, gfa, gb, gfb, e, one, r0, r1, r2, r3, r4, r5, r6)
+            e = ZERO
+            for k in range(c):
+                if not v0[k] >= 0:
+                    v0[k], v1[k], v2[k], v3[k] = r0[e], r1[e], r2[e], r3[e]
+                    v4[k], v5[k], v6[k] = r4[e], r5[e], r6[e]
+                    e += 1
+        for k in range(c):
+            out_i[n], out_j[n], out_d[n] = index_a[t0 + k], index_b[t0 + k], v0[k]
+            out_p[0, n], out_p[1, n], out_p[2, n] = v1[k], v2[k], v3[k]
+            out_q[0, n], out_q[1, n], out_q[2, n] = v4[k], v5[k], v6[k]
             out_s[n] = CONTACT
             n += 1
     return n
+
+
+@njit(**JIT)
+def _gather_coords(coords, index, t0, m, out):
+    """``out[:, k] = coords[index[t0 + k]]``, ``k < m``: row-major ``(n, 9)`` coordinates
+    into the columns of ``out (9, ≥ m)``, unrolled."""
+    for k in range(m):
+        i = index[t0 + k]
+        out[0, k], out[1, k], out[2, k] = coords[i, 0], coords[i, 1], coords[i, 2]
+        out[3, k], out[4, k], out[5, k] = coords[i, 3], coords[i, 4], coords[i, 5]
+        out[6, k], out[7, k], out[8, k] = coords[i, 6], coords[i, 7], coords[i, 8]
 
 
 @njit(**JIT)

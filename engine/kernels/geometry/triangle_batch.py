@@ -36,10 +36,14 @@ from engine.kernels.geometry.triangle_points import (
     BLOCK,
     _frame,
     _pair,
+    certified_points,
+    copy_columns,
     exact_point,
-    exact_points,
     exact_rows,
+    gather_coords,
+    gather_rows,
     point_rows,
+    vertex_point,
 )
 from engine.kernels.jit import INLINE, JIT, select, sqrt
 
@@ -165,27 +169,6 @@ def iterate_paired(a, fa, b, fb, m, iterations, one, band_factor, scratch):
 
 
 @njit(**JIT)
-def gather_rows(coords, frames, idx, m, coords_out, frames_out):
-    """``coords_out[:, k] = coords[idx[k]]``, ``frames_out[:, k] = frames[idx[k]]``,
-    ``k < m``: a triangle's row-major coordinates (9) and frame (14), unrolled."""
-    for k in range(m):
-        i = idx[k]
-        for c in range(9):
-            coords_out[c, k] = coords[i, c]
-        for c in range(14):
-            frames_out[c, k] = frames[i, c]
-
-
-@njit(**JIT)
-def copy_columns(src, t0, m, dst):
-    """``dst[:, k] = src[:, t0 + k]`` for ``k < m`` (an explicit loop compiles faster
-    than Numba's generic slice assignment)."""
-    for c in range(src.shape[0]):
-        for k in range(m):
-            dst[c, k] = src[c, t0 + k]
-
-
-@njit(**JIT)
 def pair_bounds(pairs):
     """``(min, max of column 0, max of column 1)`` of a non-empty ``(k, 2)`` int64 array."""
     lo, hi0, hi1 = pairs[0, 0], pairs[0, 0], pairs[0, 1]
@@ -195,16 +178,6 @@ def pair_bounds(pairs):
         hi0 = max(hi0, i)
         hi1 = max(hi1, j)
     return lo, hi0, hi1
-
-
-@njit(**JIT)
-def gather_coords(src, pairs, side, t0, m, dst):
-    """``dst[:, k] = src[pairs[t0 + k, side], :]``: coordinates, unrolled."""
-    for k in range(m):
-        i = pairs[t0 + k, side]
-        dst[0, k], dst[1, k], dst[2, k] = src[i, 0], src[i, 1], src[i, 2]
-        dst[3, k], dst[4, k], dst[5, k] = src[i, 3], src[i, 4], src[i, 5]
-        dst[6, k], dst[7, k], dst[8, k] = src[i, 6], src[i, 7], src[i, 8]
 
 
 @njit(**JIT)
@@ -296,8 +269,9 @@ def result_buffers(capacity, like):
 @njit(**JIT)
 def workspace(a):
     """Block buffers: gathered pairs (A, its frames, B, its frames), their original
-    indices and contact distances, scratch for the iterative kernel, distances, and the
-    :func:`point_rows` of :func:`exact_points`."""
+    indices and contact distances, scratch for the iterative kernel, distances, and two
+    :func:`point_rows` (``rows`` and ``final`` of
+    :func:`~engine.kernels.geometry.triangle_points.certified_points`)."""
     f = a.dtype
     return (
         np.empty((9, BLOCK), f),
@@ -310,6 +284,7 @@ def workspace(a):
         np.empty((9, BLOCK), f),
         np.empty(BLOCK, f),
         point_rows(a),
+        point_rows(a),
     )
 
 
@@ -317,61 +292,65 @@ def workspace(a):
 def _resolve(m, params, work, n, out, stats):
     """Contacts among the ``m ≤ BLOCK`` pairs gathered in ``work``; returns the new count.
 
-    ``params = (mode, iterations, rtol, one, band_factor)``. ``EXACT``: the exact
-    kernel on all. Otherwise the iterative kernel; in ``HYBRID`` mode it only decides
-    (certified "no contact" is final), and every pair in contact or not converged gets the
-    exact kernel's distance and closest points (``stats[STAT_FALLBACKS]`` counts the
-    not-converged ones): the contacts are the exact kernel's, bit for bit. (The iterate's
-    points are *a* pair at a distance within the tolerance, not the closest pair: for
-    parallel faces or edges they can lie a triangle apart, and near touching the direction
-    q − p is the iteration's noise.) ``ITERATIVE`` records the iterate's bound and points.
-    Exact points come from the vectorised :func:`exact_points`: in ``HYBRID`` mode on the
-    pairs that need them, moved to the front of the block (in order; ``work``'s columns
-    are overwritten).
+    ``params = (mode, iterations, rtol, one, band_factor)``. ``EXACT``: every pair's
+    contact distance and closest points, as a contact records them (below). Otherwise the
+    iterative kernel; in ``HYBRID`` mode it only decides (certified "no contact" is final),
+    and every pair in contact or not converged gets them too (``stats[STAT_FALLBACKS]``
+    counts the not-converged ones): the contacts are the exact search's, bit for bit. (The
+    iterate's points are *a* pair at a distance within the tolerance, not the closest
+    pair: for parallel faces or edges they can lie a triangle apart, and near touching the
+    direction q − p is the iteration's noise.) ``ITERATIVE`` records the iterate's bound
+    and points.
+
+    A contact records :func:`~engine.kernels.geometry.triangle_points.certified_points`:
+    the two stored vertices and their distance where the vertex–vertex certificate holds,
+    else the exact kernel's (vectorised ``exact_points``); a pair is in contact when that
+    distance is at most its ε (a pair the iterative kernel certifies in contact is kept
+    whatever it is: it is ≤ the certified upper bound ≤ ε). The pairs that need points are
+    moved to the front of the block, in order (``work``'s columns are overwritten), so
+    contacts are recorded in the order of the block.
     """
     mode, iterations, rtol, one, band_factor = params
-    ga, gfa, gb, gfb, gi, gj, geps, scratch, dist, rows = work
-    r0, r1, r2, r3, r4, r5, r6 = rows
+    ga, gfa, gb, gfb, gi, gj, geps, scratch, dist, rows, final = work
+    v0, v1, v2, v3, v4, v5, v6 = final
     out_i, out_j, out_d, out_p, out_q, out_s = out
+    c = ZERO  # pairs that need points, moved to columns 0 … c − 1
     if mode == EXACT:
-        exact_points(ga, gfa, gb, gfb, m, one, r0, r1, r2, r3, r4, r5, r6)
+        c = m
         for k in range(m):
-            if r0[k] <= geps[k]:
-                p, q = (r1[k], r2[k], r3[k]), (r4[k], r5[k], r6[k])
+            dist[k] = one - one  # in contact when its distance is within ε
+    else:
+        iterate_paired(ga, gfa, gb, gfb, m, iterations, one, band_factor, scratch)
+        stats[STAT_ITERATIVE] += m
+        for k in range(m):
+            eps = geps[k]
+            upper, low, band = scratch[6, k], scratch[7, k], scratch[8, k]
+            st = classify(upper, low, eps, rtol * eps + band, band)
+            if mode == HYBRID:
+                if st == NO_CONTACT:
+                    continue
+                if st == NOT_CONVERGED:
+                    stats[STAT_FALLBACKS] += 1
+                # certified contact: kept whatever its distance; not converged: kept if the
+                # distance is within ε
+                dist[c] = select(st == CONTACT, one, one - one)
+                if c < k:
+                    _move_column(ga, gfa, gb, gfb, gi, gj, geps, k, c)
+                c += 1
+            elif st != NO_CONTACT:
+                o = (ga[0, k], ga[1, k], ga[2, k])
+                p = (scratch[0, k] + o[0], scratch[1, k] + o[1], scratch[2, k] + o[2])
+                q = (scratch[3, k] + o[0], scratch[4, k] + o[1], scratch[5, k] + o[2])
                 n = _record(
-                    n, gi[k], gj[k], r0[k], p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
+                    n, gi[k], gj[k], upper, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s
                 )
-        return n
-    iterate_paired(ga, gfa, gb, gfb, m, iterations, one, band_factor, scratch)
-    stats[STAT_ITERATIVE] += m
-    c = ZERO  # HYBRID: pairs that need exact points, moved to columns 0 … c − 1
-    for k in range(m):
-        eps = geps[k]
-        upper, low, band = scratch[6, k], scratch[7, k], scratch[8, k]
-        st = classify(upper, low, eps, rtol * eps + band, band)
-        if mode == HYBRID:
-            if st == NO_CONTACT:
-                continue
-            if st == NOT_CONVERGED:
-                stats[STAT_FALLBACKS] += 1
-            # certified contact: kept whatever the exact distance (it is <= the certified
-            # upper bound <= ε); not converged: kept if the exact distance is within ε
-            dist[c] = select(st == CONTACT, one, one - one)
-            if c < k:
-                _move_column(ga, gfa, gb, gfb, gi, gj, geps, k, c)
-            c += 1
-        elif st != NO_CONTACT:
-            o = (ga[0, k], ga[1, k], ga[2, k])
-            p = (scratch[0, k] + o[0], scratch[1, k] + o[1], scratch[2, k] + o[2])
-            q = (scratch[3, k] + o[0], scratch[4, k] + o[1], scratch[5, k] + o[2])
-            n = _record(n, gi[k], gj[k], upper, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s)
     if c > 0:
-        exact_points(ga, gfa, gb, gfb, c, one, r0, r1, r2, r3, r4, r5, r6)
+        certified_points(ga, gfa, gb, gfb, c, one, final, rows)
         for k in range(c):
-            if dist[k] != 0 or r0[k] <= geps[k]:
-                p, q = (r1[k], r2[k], r3[k]), (r4[k], r5[k], r6[k])
+            if dist[k] != 0 or v0[k] <= geps[k]:
+                p, q = (v1[k], v2[k], v3[k]), (v4[k], v5[k], v6[k])
                 n = _record(
-                    n, gi[k], gj[k], r0[k], p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
+                    n, gi[k], gj[k], v0[k], p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
                 )
     return n
 
@@ -406,7 +385,11 @@ def _flush(rm, c, params, work, n, out, stats):
 def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, stats):
     """Contacts among all pairs ``(i, j)``, ``start ≤ i < stop``, every j (streamed).
 
-    A pair is in contact when its distance is at most ``eps_a[i] + eps_b[j]``.
+    A pair is in contact when its distance is at most ``eps_a[i] + eps_b[j]``; a contact
+    records :func:`~engine.kernels.geometry.triangle_points.certified_points`' values (in
+    ``EXACT`` mode :func:`vertex_point`, else ``exact_point``, on the pairs whose exact
+    distance is within ε plus a rounding allowance, then decided on the recorded distance,
+    as :func:`_resolve` decides).
     ``rm`` holds row-major copies of (a, fa, b, fb) for gathering; ``params`` and
     ``out`` are as in :func:`_resolve` and :func:`_record`. Returns the number of
     results, which may exceed the capacity of ``out`` (the host then re-runs with
@@ -423,15 +406,26 @@ def all_pairs_kernel(a, fa, b, fb, rm, eps_a, eps_b, start, stop, params, out, s
     out_i, out_j, out_d, out_p, out_q, out_s = out
     margin = np.empty(nb, a.dtype)
     dist = np.empty(nb, a.dtype)
+    h = one / (one + one)
+    h4 = (h * h) * (h * h)
+    ulp16 = (h4 * h4) * (h4 * h4)  # 2⁻¹⁶
     c = ZERO
     for i in range(start, stop):
         stats[STAT_PAIRS] += nb
         if mode == EXACT:
             exact_rows(a, fa, i, b, fb, one, dist)
             for j in range(nb):
-                if dist[j] <= eps_a[i] + eps_b[j]:
-                    d, p, q = exact_point(a, fa, i, b, fb, j, one)
-                    n = _record(n, i, j, d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s)
+                reach = eps_a[i] + eps_b[j]
+                # the certified distance is the exact one up to a few ulp of the pair's scale
+                allowance = (dist[j] + _extent(fa, i, one) + _extent(fb, j, one)) * ulp16
+                if dist[j] <= reach + allowance:
+                    d, p, q = vertex_point(a, i, b, j, one)
+                    if not d >= 0:
+                        d, p, q = exact_point(a, fa, i, b, fb, j, one)
+                    if d <= reach:
+                        n = _record(
+                            n, i, j, d, p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
+                        )
             continue
         bound_rows(a, fa, i, b, fb, eps_a[i], eps_b, one, band_factor, margin)
         kept = ZERO

@@ -5,6 +5,10 @@ triangle sets and frames is described there).
 
 A pair (i, j) is evaluated in a frame whose origin is vertex 0 of its A triangle
 (:func:`_pair`); points are shifted back to the input frame on output.
+
+It also holds the block gathers (:func:`gather_rows`, :func:`gather_coords`,
+:func:`copy_columns`; re-exported by ``triangle_batch``) and the vertex–vertex certificate
+(:func:`vertex_pair`): the points a contact records (:func:`certified_points`).
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.geometry.triangle_exact import exact_pair
-from engine.kernels.jit import INLINE, JIT, sqrt
+from engine.kernels.jit import INLINE, JIT, select, sqrt
 
 BLOCK = 256  # pairs per block of the batch kernels (and rows of :func:`point_rows`)
 
@@ -117,3 +121,161 @@ def exact_point(a, fa, i, b, fb, j, one):
         (p[0] + o[0], p[1] + o[1], p[2] + o[2]),
         (q[0] + o[0], q[1] + o[1], q[2] + o[2]),
     )
+
+
+@njit(**INLINE)
+def _closer(best, d2, p, q):
+    """``best = (d², p, q)`` replaced by the candidate when it is strictly closer."""
+    return select(d2 < best[0], (d2, p, q), best)
+
+
+@njit(**INLINE)
+def _dist2(p, q):
+    x, y, z = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+    return x * x + y * y + z * z
+
+
+@njit(**INLINE)
+def _kkt(v, p, g, gg, tau2, sign):
+    """Vertex ``v`` of the triangle whose vertex ``p`` is chosen: ``sign·(v − p)·g <
+    −τ|v − p||g|`` (strictly on the far side of the plane through p normal to g, by an angle
+    margin), or v = p."""
+    x, y, z = v[0] - p[0], v[1] - p[1], v[2] - p[2]
+    dot = sign * (x * g[0] + y * g[1] + z * g[2])
+    ee = x * x + y * y + z * z
+    return (ee == sign - sign) | ((dot < sign - sign) & (dot * dot > tau2 * ee * gg))
+
+
+@njit(**INLINE)
+def vertex_pair(a0, a1, a2, b0, b1, b2, one):
+    """The vertex–vertex certificate of one triangle pair (vertices as 3-tuples, any frame).
+
+    Takes the closest of the 9 vertex pairs ``(a_k, b_l)`` (the first on ties) and
+    ``g = b_l − a_k``; certifies it when ``|g| > 0``, every other vertex of A satisfies
+    ``(a_m − a_k)·g < −τ|a_m − a_k||g|`` and every other vertex of B ``(b_m − b_l)·g >
+    τ|b_m − b_l||g|`` (a vertex equal to the chosen one passes), ``τ = 2⁻¹⁰ ≈ 1e-3``.
+    This is the KKT condition of the distance between two convex hulls with a margin: the
+    plane through a_k normal to g supports A, the one through b_l supports B, so ``(a_k,
+    b_l)`` is the unique closest pair of the two triangles, exactly; the rounding of the
+    differences (a few ulp, relative) is far inside the margin. Near-degenerate cases
+    (parallel faces or edges, a vertex over a face or an edge, touching or crossing
+    triangles, ties) fail the margin and are refused.
+
+    Returns ``(d, p, q)``: ``d = |g|`` and the two stored vertices ``p = a_k``, ``q = b_l``
+    where certified, ``d = −1`` where refused (NaN input is refused). The exact kernel
+    returns the same pair up to its own rounding (it works in a frame at A's vertex 0):
+    within a few ulp of the coordinates for the points and of the pair's scale for the
+    distance (~1e-17 on the paper's grid), so a certified value is a deliberate rounding
+    change of the exact kernel's, not a different answer.
+    """
+    zero = one - one
+    h = one / (one + one)
+    h2 = h * h
+    h8 = (h2 * h2) * (h2 * h2)
+    tau2 = (h8 * h8) * (h2 * h2)  # τ² = 2⁻²⁰
+    best = (_dist2(a0, b0), a0, b0)
+    best = _closer(best, _dist2(a0, b1), a0, b1)
+    best = _closer(best, _dist2(a0, b2), a0, b2)
+    best = _closer(best, _dist2(a1, b0), a1, b0)
+    best = _closer(best, _dist2(a1, b1), a1, b1)
+    best = _closer(best, _dist2(a1, b2), a1, b2)
+    best = _closer(best, _dist2(a2, b0), a2, b0)
+    best = _closer(best, _dist2(a2, b1), a2, b1)
+    best = _closer(best, _dist2(a2, b2), a2, b2)
+    gg, p, q = best
+    g = (q[0] - p[0], q[1] - p[1], q[2] - p[2])
+    ok = (gg > zero) & _kkt(a0, p, g, gg, tau2, one) & _kkt(a1, p, g, gg, tau2, one)
+    ok = ok & _kkt(a2, p, g, gg, tau2, one) & _kkt(b0, q, g, gg, tau2, -one)
+    ok = ok & _kkt(b1, q, g, gg, tau2, -one) & _kkt(b2, q, g, gg, tau2, -one)
+    return select(ok, sqrt(select(ok, gg, one)), -one), p, q
+
+
+@njit(**INLINE)
+def _vertices(a, i):
+    return (a[0, i], a[1, i], a[2, i]), (a[3, i], a[4, i], a[5, i]), (a[6, i], a[7, i], a[8, i])
+
+
+@njit(**JIT)
+def vertex_point(a, i, b, j, one):
+    """:func:`vertex_pair` of pair (i, j) of triangle sets ``a (9, na)``, ``b (9, nb)``."""
+    a0, a1, a2 = _vertices(a, i)
+    b0, b1, b2 = _vertices(b, j)
+    return vertex_pair(a0, a1, a2, b0, b1, b2, one)
+
+
+@njit(**JIT)
+def vertex_points(a, b, m, one, d, pax, pay, paz, pbx, pby, pbz):
+    """:func:`vertex_pair` of pairs (t, t), ``0 ≤ t < m``, vectorised; outputs as
+    :func:`exact_points`' (``d[t] = −1``: refused, points then meaningless)."""
+    for t in range(m):
+        a0, a1, a2 = _vertices(a, t)
+        b0, b1, b2 = _vertices(b, t)
+        dt, p, q = vertex_pair(a0, a1, a2, b0, b1, b2, one)
+        d[t] = dt
+        pax[t], pay[t], paz[t] = p
+        pbx[t], pby[t], pbz[t] = q
+
+
+@njit(**JIT)
+def certified_points(a, fa, b, fb, m, one, final, rows):
+    """Distance and closest points of pairs (t, t), ``0 ≤ t < m``, as a contact records
+    them: :func:`vertex_pair`'s where it certifies the pair, else :func:`exact_points`'.
+
+    ``final`` and ``rows``: two :func:`point_rows`; the results go to ``final`` (column t
+    for pair t); the refused pairs' columns of ``a, fa, b, fb`` are moved to the front, in
+    order (the others are overwritten), and their exact values pass through ``rows``.
+    """
+    d, pax, pay, paz, pbx, pby, pbz = final
+    r0, r1, r2, r3, r4, r5, r6 = rows
+    vertex_points(a, b, m, one, d, pax, pay, paz, pbx, pby, pbz)
+    e = 0
+    for t in range(m):
+        if not d[t] >= 0:
+            if e < t:
+                for c in range(9):
+                    a[c, e] = a[c, t]
+                    b[c, e] = b[c, t]
+                for c in range(14):
+                    fa[c, e] = fa[c, t]
+                    fb[c, e] = fb[c, t]
+            e += 1
+    if e == 0:
+        return
+    exact_points(a, fa, b, fb, e, one, r0, r1, r2, r3, r4, r5, r6)
+    e = 0
+    for t in range(m):
+        if not d[t] >= 0:
+            d[t], pax[t], pay[t], paz[t] = r0[e], r1[e], r2[e], r3[e]
+            pbx[t], pby[t], pbz[t] = r4[e], r5[e], r6[e]
+            e += 1
+
+
+@njit(**JIT)
+def gather_rows(coords, frames, idx, m, coords_out, frames_out):
+    """``coords_out[:, k] = coords[idx[k]]``, ``frames_out[:, k] = frames[idx[k]]``,
+    ``k < m``: a triangle's row-major coordinates (9) and frame (14), unrolled."""
+    for k in range(m):
+        i = idx[k]
+        for c in range(9):
+            coords_out[c, k] = coords[i, c]
+        for c in range(14):
+            frames_out[c, k] = frames[i, c]
+
+
+@njit(**JIT)
+def copy_columns(src, t0, m, dst):
+    """``dst[:, k] = src[:, t0 + k]`` for ``k < m`` (an explicit loop compiles faster
+    than Numba's generic slice assignment)."""
+    for c in range(src.shape[0]):
+        for k in range(m):
+            dst[c, k] = src[c, t0 + k]
+
+
+@njit(**JIT)
+def gather_coords(src, pairs, side, t0, m, dst):
+    """``dst[:, k] = src[pairs[t0 + k, side], :]``: coordinates, unrolled."""
+    for k in range(m):
+        i = pairs[t0 + k, side]
+        dst[0, k], dst[1, k], dst[2, k] = src[i, 0], src[i, 1], src[i, 2]
+        dst[3, k], dst[4, k], dst[5, k] = src[i, 3], src[i, 4], src[i, 5]
+        dst[6, k], dst[7, k], dst[8, k] = src[i, 6], src[i, 7], src[i, 8]

@@ -81,6 +81,32 @@ def test_bank_results_are_ragged_and_counted(trees):
     )
 
 
+def test_threaded_pairs_are_joined_on_first_access(trees):
+    """With worker chunks, ``pairs`` is held as the chunks' rows and joined once, when
+    read: the same rows, in the same order, as one thread's."""
+    bank = TreeBank(trees)
+    queries = random_queries(trees, 300, seed=5)
+    index = {id(t): i for i, t in enumerate(trees)}
+    args = (
+        [index[id(q[0])] for q in queries],
+        [q[1].position for q in queries],
+        [q[1].orientation for q in queries],
+        [index[id(q[2])] for q in queries],
+        [q[3].position for q in queries],
+        [q[3].orientation for q in queries],
+    )
+    threaded = bank.find_contacts(*args, threads=2)
+    single = bank.find_contacts(*args, threads=1)
+    assert len(threaded.pair_chunks) > 1 and len(single.pair_chunks) == 1
+    assert "pairs" not in vars(threaded)  # not joined yet
+    assert sum(len(c) for c in threaded.pair_chunks) == threaded.pair_offsets[-1] > 0
+    np.testing.assert_array_equal(threaded.pairs, single.pairs)
+    assert threaded.pairs is threaded.pairs  # joined once
+    np.testing.assert_array_equal(threaded.pair_offsets, single.pair_offsets)
+    for q in (0, 150, 299):
+        np.testing.assert_array_equal(threaded[q].pairs, single[q].pairs)
+
+
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
