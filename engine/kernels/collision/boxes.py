@@ -144,48 +144,43 @@ def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
     too, so a search that ends True within the budget ends True with any smaller margin."""
     stack = np.empty((budget + 1, 2), np.int64)
     placed = np.empty((1, 19))
-    _place(table_b, 0, rotation, shift, placed)
-    if _row_pair_apart(table_a, 0, placed, 0, margin):
-        return True
-    stack[0, 0], stack[0, 1] = 0, 0
-    top, tests = 1, 1
-    while top > 0:
+    # one test site (each inlined copy of the box test costs compile time): the root pair
+    # is tested as the one "child" of an A side whose children are [0, 1)
+    i, j, side_a, first, count = 0, 0, True, 0, 1
+    top, tests = 0, 0
+    while True:
+        closest, nearest = top, np.inf  # the kept child pair whose spheres overlap most
+        if side_a:
+            _place(table_b, j, rotation, shift, placed)
+        for c in range(first, first + count):
+            tests += 1
+            if tests > budget:
+                return False
+            ci, cj = i, j
+            if side_a:
+                ci = c
+            else:
+                cj = c
+                _place(table_b, c, rotation, shift, placed)
+            if not _row_pair_apart(table_a, ci, placed, 0, margin):
+                key = _overlap(table_a, ci, placed)
+                if key < nearest:
+                    closest, nearest = top, key
+                stack[top, 0], stack[top, 1] = ci, cj
+                top += 1
+        if top > 0 and closest < top - 1:  # popped next
+            for col in range(2):
+                stack[closest, col], stack[top - 1, col] = stack[top - 1, col], stack[closest, col]
+        if top == 0:
+            return True
         top -= 1
         i, j = stack[top, 0], stack[top, 1]
         count_a, count_b = np.int64(table_a[i, 20]), np.int64(table_b[j, 20])
         if count_a == 0 and count_b == 0:
             return False  # two leaves that may touch
-        closest, nearest = top, np.inf  # the kept child pair whose spheres overlap most
-        if count_a > 0 and (count_b == 0 or table_a[i, 18] >= table_b[j, 18]):
-            _place(table_b, j, rotation, shift, placed)
-            first = np.int64(table_a[i, 19])
-            for c in range(first, first + count_a):
-                tests += 1
-                if tests > budget:
-                    return False
-                if not _row_pair_apart(table_a, c, placed, 0, margin):
-                    key = _overlap(table_a, c, placed)
-                    if key < nearest:
-                        closest, nearest = top, key
-                    stack[top, 0], stack[top, 1] = c, j
-                    top += 1
-        else:
-            first = np.int64(table_b[j, 19])
-            for c in range(first, first + count_b):
-                tests += 1
-                if tests > budget:
-                    return False
-                _place(table_b, c, rotation, shift, placed)
-                if not _row_pair_apart(table_a, i, placed, 0, margin):
-                    key = _overlap(table_a, i, placed)
-                    if key < nearest:
-                        closest, nearest = top, key
-                    stack[top, 0], stack[top, 1] = i, c
-                    top += 1
-        if top > 0 and closest < top - 1:  # popped next
-            for col in range(2):
-                stack[closest, col], stack[top - 1, col] = stack[top - 1, col], stack[closest, col]
-    return True
+        side_a = count_a > 0 and (count_b == 0 or table_a[i, 18] >= table_b[j, 18])
+        first = np.int64(table_a[i, 19]) if side_a else np.int64(table_b[j, 19])
+        count = count_a if side_a else count_b
 
 
 @njit(**INLINE)

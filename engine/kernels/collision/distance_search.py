@@ -460,7 +460,7 @@ def distance_kernel(
                 j = pick
         _gather_a(prepared_a, i, 0, ga, gfa)
         _gather_b(b, j, r, s, 0, gb, gfb)
-        exact_paired(ga, gfa, gb, gfb, 1, one, dist)
+        exact_paired(ga, gfa, gb, gfb, ZERO + 1, one, dist)  # (a literal 1: another compile)
         exact += 1
         d = np.float64(dist[0])
         if d < best:
@@ -472,12 +472,11 @@ def distance_kernel(
         best, best_i, best_j, pairs, searched, unfolded, largest, pruned = found
         exact += searched
 
-    # the closest points of the pair found
-    at = prepared_a.T
-    _gather_b(b, best_j, r, s, 0, gb, gfb)
-    d, p, q = exact_point(
-        at[COORDS : COORDS + 9], at[FRAMES : FRAMES + 14], best_i, gb, gfb, 0, one
-    )
+    # the closest points of the pair found (gathered: exact_point's C-layout, int64
+    # specialisation, the one the flat search compiles)
+    _gather_a(prepared_a, best_i, ZERO, ga, gfa)
+    _gather_b(b, best_j, r, s, ZERO, gb, gfb)
+    d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
     faces[0], faces[1] = np.int64(a[best_i, FACE]), np.int64(b[best_j, FACE])
     pa = np.float64(p[0]), np.float64(p[1]), np.float64(p[2])
     pb = np.float64(q[0]), np.float64(q[1]), np.float64(q[2])
