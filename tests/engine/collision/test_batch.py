@@ -57,11 +57,11 @@ def test_flat_batch_equals_flat_queries(trees):
         np.testing.assert_array_equal(got.pairs, find_contacts(*query, hierarchy=False).pairs)
 
 
-def test_bank_results_are_ragged_and_counted(trees):
-    bank = TreeBank(trees)
-    queries = random_queries(trees, 50, seed=3)
+def bank_arguments(trees, queries) -> tuple:
+    """``TreeBank.find_contacts``' six columns (tree indices, positions, orientations of A
+    and of B) for ``(tree_a, pose_a, tree_b, pose_b)`` queries."""
     index = {id(t): i for i, t in enumerate(trees)}
-    result = bank.find_contacts(
+    return (
         [index[id(q[0])] for q in queries],
         [q[1].position for q in queries],
         [q[1].orientation for q in queries],
@@ -69,6 +69,11 @@ def test_bank_results_are_ragged_and_counted(trees):
         [q[3].position for q in queries],
         [q[3].orientation for q in queries],
     )
+
+
+def test_bank_results_are_ragged_and_counted(trees):
+    bank = TreeBank(trees)
+    result = bank.find_contacts(*bank_arguments(trees, random_queries(trees, 50, seed=3)))
     assert len(result) == 50
     assert result.pair_offsets[-1] == len(result.pairs)
     assert result.contact_offsets[-1] == len(result.points) == len(result.overlaps)
@@ -85,16 +90,7 @@ def test_threaded_pairs_are_joined_on_first_access(trees):
     """With worker chunks, ``pairs`` is held as the chunks' rows and joined once, when
     read: the same rows, in the same order, as one thread's."""
     bank = TreeBank(trees)
-    queries = random_queries(trees, 300, seed=5)
-    index = {id(t): i for i, t in enumerate(trees)}
-    args = (
-        [index[id(q[0])] for q in queries],
-        [q[1].position for q in queries],
-        [q[1].orientation for q in queries],
-        [index[id(q[2])] for q in queries],
-        [q[3].position for q in queries],
-        [q[3].orientation for q in queries],
-    )
+    args = bank_arguments(trees, random_queries(trees, 300, seed=5))
     threaded = bank.find_contacts(*args, threads=2)
     single = bank.find_contacts(*args, threads=1)
     assert len(threaded.pair_chunks) > 1 and len(single.pair_chunks) == 1
