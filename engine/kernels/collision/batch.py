@@ -24,6 +24,7 @@ from engine.kernels.collision.pair_lists import by_faces, listed_contacts, refer
 from engine.kernels.collision.traversal import query_kernel
 from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.geometry.triangle_batch import (
+    ITERATIVE,
     N_STATS,
     STAT_FALLBACKS,
     STAT_ITERATIVE,
@@ -166,7 +167,8 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     less than s relative to A since its reference pose (:func:`motion_bound`, plus the
     query's margin), evaluating only the listed pairs that may be in contact now
     (:func:`listed_contacts`); else it traverses with every ε grown by s/2 and starts a
-    new list (:func:`reference_distances`).
+    new list (its pairs' exact distances as the traversal recorded them; in ``ITERATIVE``
+    mode, which records bounds, :func:`reference_distances`).
 
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
     int64 (pairs evaluated per level). In the result, query ``start + t`` owns rows
@@ -270,7 +272,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 bank.spheres[b0:b1],
             )
             inflate = 0.5 * reach if skin > 0.0 else 0.0
-            depth, unfoldings, result, near = query_kernel(
+            depth, unfoldings, result, near, distances = query_kernel(
                 body_a,
                 body_b,
                 (rotation, shift),
@@ -297,19 +299,24 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             normals_out[c0:c1] = nrm
             overlaps[c0:c1] = ovl
             if n1 > n0:
-                near = by_faces(near, bank.face[a0:a1], bank.face[b0:b1], trees.face_count[tb])
+                near, distances = by_faces(
+                    near, distances, bank.face[a0:a1], bank.face[b0:b1], trees.face_count[tb]
+                )
                 near_out = _grow(near_out, n0, n1)
                 near_distances = _grow(near_distances, n0, n1)
                 near_out[n0:n1] = near
-                reference_distances(
-                    bank,
-                    (a0, b0),
-                    (rotation, shift),
-                    near,
-                    params.leaf[3],
-                    (local, buffers),
-                    near_distances[n0:n1],
-                )
+                if params.leaf[0] == ITERATIVE:  # the traversal recorded bounds, not distances
+                    reference_distances(
+                        bank,
+                        (a0, b0),
+                        (rotation, shift),
+                        near,
+                        params.leaf[3],
+                        (local, buffers),
+                        near_distances[n0:n1],
+                    )
+                else:  # the exact distances the traversal recorded them with
+                    near_distances[n0:n1] = distances
         pair_offsets[t + 1], contact_offsets[t + 1], near_offsets[t + 1] = p1, c1, n1
         counts[t, COUNT_DEPTH] = depth
         counts[t, COUNT_UNFOLDINGS] = unfoldings

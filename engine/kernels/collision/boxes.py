@@ -23,14 +23,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import EXACT_JIT, INLINE, JIT
+from engine.kernels.jit import BORROW, EXACT_BORROW, EXACT_JIT, JIT
 
 BOX_COLUMNS = 15  # centre (3), axes (3 × 3, one per row), half-extents (3)
 TABLE_COLUMNS = 21  # a box (15), a sphere: centre (3), radius; first child, child count
 SEARCH_BUDGET = 256  # node pairs a bounds-only search tests before it gives up
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def place_row(boxes_b, j, rotation, shift, placed_b, done):
     """B's box row ``j`` of ``boxes_b (N, 15)`` float64 moved into A's frame by
     ``x ↦ rotation x + shift`` (``rotation (3, 3)``, ``shift (3,)`` float64), into
@@ -47,13 +47,13 @@ def place_row(boxes_b, j, rotation, shift, placed_b, done):
         done[j] = True
 
 
-@njit(**EXACT_JIT)
+@njit(**EXACT_BORROW)
 def place_box(boxes_b, j, rotation, shift, placed_b, done):
     """:func:`place_row` as a called function (arguments as there)."""
     place_row(boxes_b, j, rotation, shift, placed_b, done)
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def separated(boxes_a, i, placed_b, j, margin):
     """True when A's box row ``i`` of ``boxes_a (Na, 15)`` and B's placed row ``j`` of
     ``placed_b (Nb, 15)`` (both float64, A's frame) are apart by more than ``margin``
@@ -121,7 +121,7 @@ def separated(boxes_a, i, placed_b, j, margin):
     return abs(t1 * r02 - t0 * r12) > ha0 * e12 + ha1 * e02 + hb0 * e21 + hb1 * e20 + margin
 
 
-@njit(**EXACT_JIT)
+@njit(**EXACT_BORROW)
 def box_apart(boxes_a, i, placed_b, j, margin):
     """:func:`separated` as a called function (arguments as there)."""
     return separated(boxes_a, i, placed_b, j, margin)
@@ -183,7 +183,7 @@ def bounds_apart(table_a, table_b, rotation, shift, margin, budget):
         count = count_a if side_a else count_b
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _overlap(rows_a, i, placed):
     """``|c_a − c_b|² − (r_a + r_b)²`` (float64) of the spheres of row ``i`` of ``rows_a``
     and ``placed[0]`` (:func:`bounds_apart`'s layout, A's frame): smaller where they
@@ -195,7 +195,7 @@ def _overlap(rows_a, i, placed):
     return dx * dx + dy * dy + dz * dz - reach * reach
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _place(table_b, j, rotation, shift, out):
     """B's node ``j`` (its box and sphere, columns 0–18 of ``table_b``) moved into A's frame,
     into ``out[0]`` (``(1, 19)`` float64)."""
@@ -223,7 +223,7 @@ def _place(table_b, j, rotation, shift, out):
         out[0, c] = table_b[j, c]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _row_pair_apart(rows_a, i, placed, j, margin):
     """Rows ``i`` of ``rows_a`` and ``j`` of ``placed`` (:func:`bounds_apart`'s layout, A's
     frame; box, then sphere) apart by more than ``margin``: their spheres, else their

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import JIT
+from engine.kernels.jit import BORROW, JIT
 
 _f64 = np.float64
 
@@ -98,7 +98,7 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
     return m, k
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _same_row(point_a, point_b, distance, t, u):
     """Rows ``t`` and ``u`` of a search's results hold the same points and distance."""
     return (
@@ -218,7 +218,7 @@ def _deepest_first(overlaps):
     return np.arange(m)
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _same_point(points, s, u):
     return (
         points[s, 0] == points[u, 0]

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import INLINE, JIT, select, sqrt
+from engine.kernels.jit import BORROW, JIT, select, sqrt
 
 # Columns of the node rows (:mod:`~engine.kernels.collision.distance_search` documents them).
 COORDS, FRAMES, CENTRE, RADIUS, GAP, FIRST, COUNT, FACE, EXTENT = 0, 9, 23, 26, 27, 28, 29, 30, 31
@@ -84,7 +84,7 @@ def box_extents(triangles, face, parent, axes, low, high):
             node = parent[node]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _turn(r, x, y, z):
     return (
         r[0] * x + r[1] * y + r[2] * z,
@@ -93,12 +93,12 @@ def _turn(r, x, y, z):
     )
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _dot(p, q):
     return p[0] * q[0] + p[1] * q[1] + p[2] * q[2]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _gap(a, i, c, u, v, t, hb):
     """:func:`box_gap` of A's node ``i`` and a box placed in A's frame: centre ``c``, unit
     axes ``u, v, t``, half-extents ``hb`` (tuples of 3)."""
@@ -125,7 +125,7 @@ def _gap(a, i, c, u, v, t, hb):
     return max(gap, centres)
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def box_gap(a, i, b, j, r, s):
     """Lower bound on the distance between the faces covered by A's node ``i`` (rows
     ``a``) and B's node ``j`` (rows ``b``, moved by ``x ↦ R x + s``, ``r`` the 9 entries of
@@ -139,7 +139,7 @@ def box_gap(a, i, b, j, r, s):
     return _gap(a, i, c, u, v, t, (b[j, HALF], b[j, HALF + 1], b[j, HALF + 2]))
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def place_box(b, j, r, s, placed, k):
     """Column ``k`` of ``placed (≥ N_PLACED, m)`` float64: B's node ``j`` box moved by ``x ↦
     R x + s`` (as :func:`box_gap` moves it): rows 0:3 centre, 3:12 the three axes, 12:15
@@ -157,7 +157,7 @@ def place_box(b, j, r, s, placed, k):
         placed[12 + c, k] = b[j, HALF + c]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def placed_gap(a, i, placed, k):
     """:func:`box_gap` of A's node ``i`` and the box in column ``k`` of ``placed`` (from
     :func:`place_box`)."""
@@ -168,7 +168,7 @@ def placed_gap(a, i, placed, k):
     return _gap(a, i, c, u, v, t, (placed[12, k], placed[13, k], placed[14, k]))
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def sphere_bound(a, i, b, j, r, s):
     """Sphere bound of the pair (i, j)."""
     cx = r[0] * b[j, CENTRE] + r[1] * b[j, CENTRE + 1] + r[2] * b[j, CENTRE + 2] + s[0]
@@ -178,7 +178,7 @@ def sphere_bound(a, i, b, j, r, s):
     return sqrt(ux * ux + uy * uy + uz * uz) - a[i, RADIUS] - b[j, RADIUS]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def sphere_far(a, i, b, j, r, s, limit):
     """``(far, d2)``: the sphere bound of the pair (i, j) exceeds ``limit`` (tested on
     squares, no square root), and the squared distance of the centres."""
@@ -191,7 +191,7 @@ def sphere_far(a, i, b, j, r, s, limit):
     return reach >= 0.0 and d2 > reach * reach, d2
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def node_bound(a, i, b, j, r, s, best, margin):
     """Bound 1 of the pair (i, j), then (unless that one drops the pair, ``bound − margin
     > best``: then +inf) the larger of bounds 1 and 2."""
@@ -202,7 +202,7 @@ def node_bound(a, i, b, j, r, s, best, margin):
     return max(sphere, box_gap(a, i, b, j, r, s))
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def place_node(b, j, r, s, placed, k):
     """Column ``k`` of ``placed (PLACED, m)``: B's node ``j`` moved into A's frame, its box
     (:func:`~engine.kernels.collision.distance_bounds.place_box`) then its sphere (centre,
@@ -215,7 +215,7 @@ def place_node(b, j, r, s, placed, k):
     placed[N_PLACED + 3, k] = b[j, RADIUS]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def far_placed(a, i, placed, k, limit):
     """``(far, d2)`` of :func:`sphere_far` for A's node ``i`` and the placed B node ``k``."""
     ux = placed[N_PLACED, k] - a[i, CENTRE]
@@ -226,7 +226,7 @@ def far_placed(a, i, placed, k, limit):
     return reach >= 0.0 and d2 > reach * reach, d2
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def bound_placed(a, i, placed, k, best, margin):
     """:func:`node_bound` for A's node ``i`` and the placed B node ``k``."""
     far, d2 = far_placed(a, i, placed, k, best + margin)
@@ -236,7 +236,7 @@ def bound_placed(a, i, placed, k, best, margin):
     return max(sphere, placed_gap(a, i, placed, k))
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def child_bounds(a, i, placed, n, out):
     """``out[t]`` (``0 ≤ t < n``): the larger of bounds 1 and 2 of A's node ``i`` and the
     placed B node ``t`` (:func:`place_node`); one loop over the columns, vectorised."""
@@ -284,7 +284,7 @@ def child_bounds(a, i, placed, n, out):
         out[t] = max(max(gap, centres), sphere)
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def may_drop(a, i, b, j, r, s, limit):
     """Bound 3 of the internal pair (i, j) may exceed ``limit``: the nearest of the two
     node triangles' vertex pairs (an upper bound on their distance), less ``g_a + g_b``,

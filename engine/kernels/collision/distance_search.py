@@ -111,7 +111,7 @@ from engine.kernels.collision.distance_bounds import (  # noqa: F401 (columns re
 )
 from engine.kernels.geometry.triangle_batch import ZERO
 from engine.kernels.geometry.triangle_points import exact_paired, exact_point
-from engine.kernels.jit import EXACT_JIT, INLINE, JIT
+from engine.kernels.jit import BORROW, EXACT_BORROW, JIT
 
 N_COLUMNS = BOX + N_BOX
 # Fields of the tuple returned by :func:`distance_kernel`.
@@ -141,13 +141,13 @@ def _grown(key, ints, need):
     return out_key, out_ints
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _before(key_e, e, key_f, f):
     """Entry ``e`` pops before entry ``f``: smaller key, ties to the later entry."""
     return key_e < key_f or (key_e == key_f and e > f)
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _push(heap, size, key, e):
     """Add entry ``e`` to the binary heap ``heap[:size]`` (int64) on ``key`` (float64);
     returns the new size."""
@@ -164,7 +164,7 @@ def _push(heap, size, key, e):
     return size + 1
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _pop(heap, size, key):
     """Remove the top of ``heap[:size]`` (size > 0); returns the new size."""
     size -= 1
@@ -189,7 +189,7 @@ def _pop(heap, size, key):
     return size
 
 
-@njit(**EXACT_JIT)
+@njit(**EXACT_BORROW)
 def _moved(r, s, x, y, z):
     """``R x + s`` as :func:`~engine.kernels.collision.rigid.move_kernel` computes it (no
     contraction: the same bits); ``r`` the 9 entries of R row by row, ``s`` 3."""
@@ -200,7 +200,7 @@ def _moved(r, s, x, y, z):
     )
 
 
-@njit(**EXACT_JIT)
+@njit(**EXACT_BORROW)
 def _turned(r, x, y, z):
     """``R x`` as :func:`~engine.kernels.collision.rigid.move_kernel` computes it."""
     return (
@@ -210,7 +210,7 @@ def _turned(r, x, y, z):
     )
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _gather_a(prepared, i, k, ga, gfa):
     """Column ``k`` of ``ga (9, m)``, ``gfa (14, m)``: A's node ``i``."""
     for c in range(9):
@@ -219,7 +219,7 @@ def _gather_a(prepared, i, k, ga, gfa):
         gfa[c, k] = prepared[i, FRAMES + c]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _gather_b(b, j, r, s, k, gb, gfb):
     """Column ``k`` of ``gb (9, m)``, ``gfb (14, m)``: B's node ``j`` moved into A's frame
     as :func:`~engine.kernels.collision.rigid.move_kernel` moves it, rounded to their dtype."""
@@ -240,7 +240,7 @@ def _split_a(count_a, radius_a, count_b, radius_b):
     return count_a > 0 and (count_b == 0 or radius_a >= radius_b)
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _unfolded(a, i, b, j):
     """``(first, count)`` of A's, then of B's, nodes that replace the pair (i, j), not both
     leaves: the node with the larger sphere unfolds, and the other one too when it is a
@@ -257,7 +257,7 @@ def _unfolded(a, i, b, j):
     return first_a, count_a, first_b, count_b
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _to_world(ra, position, p):
     """``R_a p + p_a`` (a body-frame point of A to the world frame) as three floats."""
     return (

@@ -29,7 +29,7 @@ from engine.kernels.geometry.triangle_points import (
     exact_points,
     vertex_points,
 )
-from engine.kernels.jit import JIT
+from engine.kernels.jit import BORROW, JIT
 
 SURE_BLOCK = 32
 """Pairs per call of ``exact_points`` for the sure contacts. Measured (float64, AVX2, the
@@ -154,7 +154,7 @@ def _sure_contacts(rm, index_a, index_b, m, one, work, out, n):
     return n
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _gather_coords(coords, index, t0, m, out):
     """``out[:, k] = coords[index[t0 + k]]``, ``k < m``: row-major ``(n, 9)`` coordinates
     into the columns of ``out (9, ≥ m)``, unrolled."""
@@ -204,10 +204,11 @@ def reference_distances(bank, rows, pose, near, one, scratch, out):
 
 
 @njit(**JIT)
-def by_faces(near, face_a, face_b, n_faces_b):
-    """``near (m, 2)`` int64 leaf pairs (local rows of A, of B) sorted by their faces
-    ``(face_a[i], face_b[j])`` (a new array): a list kept in this order makes the
-    contacts of a listed query come in :func:`contact_kernel`'s order already
+def by_faces(near, distances, face_a, face_b, n_faces_b):
+    """``(near, distances)``: the leaf pairs ``near (m, 2)`` int64 (local rows of A, of B)
+    and their ``distances (m,)`` float64 sorted by the pairs' faces ``(face_a[i],
+    face_b[j])`` (new arrays): a list kept in this order makes the contacts of a listed
+    query come in :func:`contact_kernel`'s order already
     (:func:`~engine.kernels.collision.contact_merge.key_order`). The order of a list
     changes no result: every listed pair is evaluated on its own, and
     :func:`contact_kernel` orders the pairs by their faces."""
@@ -217,9 +218,11 @@ def by_faces(near, face_a, face_b, n_faces_b):
         keys[t] = face_a[near[t, 0]] * n_faces_b + face_b[near[t, 1]]
     order = np.argsort(keys)
     out = np.empty((m, 2), np.int64)
+    sorted_distances = np.empty(m)
     for s in range(m):
         out[s, 0], out[s, 1] = near[order[s], 0], near[order[s], 1]
-    return out
+        sorted_distances[s] = distances[order[s]]
+    return out, sorted_distances
 
 
 @njit(**JIT)

@@ -119,7 +119,7 @@ def pair_query(
         stats[STAT_SPHERES] += 1
         none = np.int64(0)
         return none, none, none, none, none
-    depth, unfoldings, n, found, near = traverse(
+    depth, unfoldings, n, found, _, _ = traverse(
         coords_a,
         frames_a,
         epsilon_a,

@@ -27,20 +27,23 @@ from engine.kernels.collision.boxes import BOX_COLUMNS, box_set_up, place_row, s
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.geometry.triangle_batch import (
+    EXACT,
+    ITERATIVE,
     STAT_SPHERES,
     ZERO,
     listed_kernel,
     listed_workspace,
     result_buffers,
 )
-from engine.kernels.jit import INLINE, JIT, select
+from engine.kernels.jit import BORROW, JIT, select, sqrt
 
 
 @njit(**JIT)
 def query_kernel(
     body_a, body_b, pose, margin, inflate, coarse_params, leaf_params, contact, stats, levels
 ):
-    """Contacts between two posed trees; returns ``(depth, unfoldings, result, near)``.
+    """Contacts between two posed trees; returns ``(depth, unfoldings, result, near,
+    near_distances)``.
 
     ``body_a = (coords (Na, 9), frames (Na, 14), epsilon (Na,) float64, face,
     first_child, child_count (Na,) int32, spheres (Na, 4) float64)``: A's nodes
@@ -61,11 +64,12 @@ def query_kernel(
     the leaf node pairs within their ε plus ``2·inflate``: with ``inflate > 0`` the
     traversal runs with every ε grown by ``inflate`` (bounding spheres too), and the
     contacts are those of ``near`` at the true ε — a superset list that stays valid
-    while B moves by less than ``2·inflate`` relative to A (see :func:`listed_query`).
+    while B moves by less than ``2·inflate`` relative to A (see :func:`listed_query`);
+    ``near_distances`` as :func:`traverse` returns them.
     """
     coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
     master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
-    depth, unfoldings, n, found, near = traverse(
+    depth, unfoldings, n, found, near, near_distances = traverse(
         coords_a,
         frames_a,
         epsilon_a,
@@ -91,7 +95,8 @@ def query_kernel(
         stats,
         levels,
     )
-    return depth, unfoldings, _contacts(found, n, face_a, face_b, contact), near
+    contacts = _contacts(found, n, face_a, face_b, contact)
+    return depth, unfoldings, contacts, near, near_distances
 
 
 @njit(**JIT)
@@ -124,9 +129,14 @@ def traverse(
     """The pair-front search (arguments as :func:`query_kernel`'s, flattened, and each
     node's oriented bounding box ``boxes_* (N, 15)`` float64, body frame, as
     :mod:`~engine.kernels.collision.boxes` reads them; ``(0, 15)`` for none); returns
-    ``(depth, unfoldings, n, found, near)``: the first ``n`` rows of ``found``
-    (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) are the leaf pairs in
-    contact (A's frame), ``near`` as in :func:`query_kernel`.
+    ``(depth, unfoldings, n, found, near, near_distances)``: the first ``n`` rows of
+    ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) are the leaf
+    pairs in contact (A's frame), ``near`` as in :func:`query_kernel` and
+    ``near_distances (len(near),)`` float64 the distance each near pair was recorded with
+    (outside ``ITERATIVE`` mode its exact distance, as a contact records it).
+
+    With ``inflate > 0`` each near leaf pair is evaluated once, at the grown ε; its
+    contact at the true ε is decided from the values recorded (:func:`_at_true_epsilon`).
 
     A node pair whose bounding spheres, or (given) boxes, are apart (by more than
     ``margin``) cannot hold a leaf pair in contact: it is pruned before any triangle
@@ -151,7 +161,8 @@ def traverse(
         boxed and separated(boxes_a, ZERO, placed_b, ZERO, reach)
     ):  # before any other set-up
         stats[STAT_SPHERES] += 1
-        return ZERO, ZERO, ZERO, result_buffers(0, coords_a), np.zeros((0, 2), np.int64)
+        none = result_buffers(0, coords_a)
+        return ZERO, ZERO, ZERO, none, np.zeros((0, 2), np.int64), np.zeros(0)
     moved = np.zeros(nb, np.bool_)  # B's node moved, its ε set
     seen_a = np.zeros(na, np.bool_)  # A's node ε set
     coords_b = np.empty((nb, 9), dtype)
@@ -261,8 +272,9 @@ def traverse(
     n = listed_kernel(rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, buffers, found, ZERO, stats)
     stats[STAT_SPHERES] += pruned
     near = np.empty((n, 2), np.int64)
-    near[:, 0] = found[0][:n]
-    near[:, 1] = found[1][:n]
+    near_distances = np.empty(n)
+    for t in range(n):
+        near[t, 0], near[t, 1], near_distances[t] = found[0][t], found[1][t], found[2][t]
     if inflate > 0.0:  # the near pairs at their true ε
         for t in range(na):
             if seen_a[t]:
@@ -270,8 +282,67 @@ def traverse(
         for t in range(nb):
             if moved[t]:
                 _eps(epsilon_b, face_b, t, margin, 0.0, eps_b)
-        n = listed_kernel(rm, eps_a, eps_b, near, ZERO, n, leaf_params, buffers, found, ZERO, stats)
-    return depth, unfoldings, n, found, near
+        if leaf_params[0] == ITERATIVE:
+            n = listed_kernel(
+                rm, eps_a, eps_b, near, ZERO, n, leaf_params, buffers, found, ZERO, stats
+            )
+        else:
+            n = _at_true_epsilon(rm, eps_a, eps_b, near, leaf_params, buffers, found, stats)
+    return depth, unfoldings, n, found, near, near_distances
+
+
+@njit(**JIT)
+def _at_true_epsilon(rm, eps_a, eps_b, near, leaf_params, buffers, found, stats):
+    """The contacts among ``near (n, 2)`` at the ε of ``eps_a``, ``eps_b``, where row t of
+    ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) is pair
+    ``near[t]`` as ``listed_kernel`` recorded it at larger ε (``EXACT`` or ``HYBRID``:
+    :func:`~engine.kernels.geometry.triangle_points.certified_points`' distance and points,
+    which do not depend on ε); returns their count, the rows kept in ``found`` in order
+    and any re-evaluated after them.
+
+    ``listed_kernel`` at these ε would record a pair, with these same values, exactly when
+    its distance d is within its ε (``EXACT``), or when the iterative kernel certifies
+    contact or does not converge and d is within ε (``HYBRID``). The iterative bounds
+    enclose d up to their rounding band, so away from ε by more than four bands
+    (``band_factor · (d + both longest edges) · κ``) the decision is d's; the pairs within
+    go through ``listed_kernel`` itself, appended after the kept rows (the order of
+    ``found`` changes no contact: :func:`~engine.kernels.collision.contact_merge.contact_kernel`
+    orders the pairs by their faces)."""
+    _, fa_rm, _, fb_rm = rm
+    one, band_factor = leaf_params[3], leaf_params[4]
+    exact = leaf_params[0] == EXACT
+    out_i, out_j, out_d, out_p, out_q, out_s = found
+    n = near.shape[0]
+    doubtful = np.empty((n, 2), np.int64)
+    kept, nd = ZERO, ZERO
+    four = one + one + one + one
+    for t in range(n):
+        i, j = near[t, 0], near[t, 1]
+        d, reach = out_d[t], eps_a[i] + eps_b[j]
+        if exact:
+            keep = d <= reach
+        else:
+            longest = one / sqrt(min(fa_rm[i, 9], min(fa_rm[i, 10], fa_rm[i, 11]))) + one / sqrt(
+                min(fb_rm[j, 9], min(fb_rm[j, 10], fb_rm[j, 11]))
+            )
+            kappa = max(fa_rm[i, 13], fb_rm[j, 13])
+            band = four * band_factor * (abs(d) + longest) * kappa
+            if not (d < reach - band or d > reach + band):  # NaN is doubtful too
+                doubtful[nd, 0], doubtful[nd, 1] = i, j
+                nd += 1
+                continue
+            keep = d <= reach
+        if keep:
+            if kept < t:
+                out_i[kept], out_j[kept], out_d[kept], out_s[kept] = i, j, d, out_s[t]
+                for c in range(3):
+                    out_p[c, kept], out_q[c, kept] = out_p[c, t], out_q[c, t]
+            kept += 1
+    if nd == 0:
+        return kept
+    return listed_kernel(
+        rm, eps_a, eps_b, doubtful, ZERO, nd, leaf_params, buffers, found, kept, stats
+    )
 
 
 @njit(**JIT)
@@ -409,14 +480,14 @@ def _contacts(found, n, face_a, face_b, contact):
     return pairs[:count], points[:k], normals[:k], overlaps[:k]
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _leaf_pair(face_a, i, face_b, j):
     """A's node ``i`` and B's node ``j`` are both leaves (``face (N,)`` int32, −1 for a
     surrogate): their contacts are final, they never unfold."""
     return (face_a[i] >= 0) & (face_b[j] >= 0)
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _children(face, first_child, child_count, i):
     """``(c0, c1)`` int64: node ``i`` unfolds into the nodes ``c0 … c1 − 1`` — its
     children if it is a surrogate (``face[i] < 0``), itself if it is a leaf.
@@ -428,7 +499,7 @@ def _children(face, first_child, child_count, i):
     )
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, margin):
     """Bounding spheres of A's node ``i`` and B's node ``j`` are apart by more than
     ``margin`` (B's centre is moved into A's frame on first use)."""
@@ -436,7 +507,7 @@ def _apart(spheres_a, i, spheres_b, centres_b, centred, j, rotation, shift, marg
     return _far(spheres_a, i, centres_b, spheres_b, j, margin)
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _centre(spheres_b, centres_b, centred, j, rotation, shift):
     """B's sphere centre ``j`` moved into A's frame, into ``centres_b[j]``, once."""
     if not centred[j]:
@@ -448,7 +519,7 @@ def _centre(spheres_b, centres_b, centred, j, rotation, shift):
         centred[j] = True
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _far(spheres_a, i, centres_b, spheres_b, j, margin):
     """As :func:`_apart` for a B node already centred (:func:`_centre`)."""
     dx = spheres_a[i, 0] - centres_b[j, 0]
@@ -458,7 +529,7 @@ def _far(spheres_a, i, centres_b, spheres_b, j, margin):
     return dx * dx + dy * dy + dz * dz > reach * reach
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _eps(epsilon, face, i, margin, inflate, out):
     """``out[i]``: node ``i``'s ε plus ``margin`` if a surrogate, rounded to ``out``'s
     dtype, then plus ``inflate`` (as :func:`~engine.kernels.collision.rigid.margin_kernel`

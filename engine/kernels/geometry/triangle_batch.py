@@ -45,7 +45,7 @@ from engine.kernels.geometry.triangle_points import (
     point_rows,
     vertex_point,
 )
-from engine.kernels.jit import INLINE, JIT, select, sqrt
+from engine.kernels.jit import BORROW, INLINE, JIT, select, sqrt
 
 # np.int64 rather than int literals: a literal argument gives a callee another
 # specialisation (and another few seconds of compilation) than a variable does.
@@ -232,7 +232,7 @@ def paired_kernel(
                 point_b[0, t], point_b[1, t], point_b[2, t] = q
 
 
-@njit(**INLINE)
+@njit(**BORROW)
 def _record(n, i, j, d, p, q, st, out_i, out_j, out_d, out_p, out_q, out_s):
     """Append one result to the arrays of ``out`` if there is room; always return the
     new count.
@@ -355,7 +355,7 @@ def _resolve(m, params, work, n, out, stats):
     return n
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _move_column(ga, gfa, gb, gfb, gi, gj, geps, k, c):
     """Column ``k`` of a gathered block (both sides' coordinates and frames, indices,
     contact distance) into column ``c``."""

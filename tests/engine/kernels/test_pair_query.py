@@ -86,7 +86,7 @@ def _nested(ta, pa, tb_, pb, precision):
     contact = contacts._contact_setup(ta, tb_, rot_a, pa.position.copy(), "hybrid")
     margin = query_margin(ta.views.geometry.extent, tb_.views.geometry.extent, shift, ULP[dtype])
     stats, levels = np.zeros(tb.N_STATS, np.int64), np.zeros(LEVELS, np.int64)
-    depth, unfoldings, result, _ = query_kernel(
+    depth, unfoldings, result, _, _ = query_kernel(
         body_a, body_b, (rotation, shift), margin, 0.0, coarse, leaf, contact, stats, levels
     )
     return depth, unfoldings, result, stats, levels
