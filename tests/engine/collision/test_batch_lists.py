@@ -129,3 +129,35 @@ def test_key_order_is_argsorts_permutation(case):
     elif case == "one":
         keys = keys[:1]
     np.testing.assert_array_equal(key_order(keys), np.argsort(keys))
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+@pytest.mark.parametrize("kernel", ["exact", "hybrid", "iterative"])
+def test_pairs_at_their_reach_get_the_traversals_decision(precision, kernel):
+    """Two parallel plates whose facing leaf pairs lie at ε_a + ε_b, or within a few
+    rounding steps of it: a call that makes the lists decides each pair's contact at the
+    true ε from the distance it recorded at the grown ε, and sends the pairs within its
+    rounding bands through the kernel again. Its contacts are the traversal's, bit for
+    bit, on both sides of the reach."""
+    plate = build_tree(shapes.plane(size=(1.0, 1.0), divisions=3), epsilon=0.01)
+    bank = TreeBank([plate], precision)
+    reach = 2 * plate.leaf_epsilon
+    ulp = float(np.finfo(precision).eps)
+    gaps = reach + reach * ulp * np.array([-64.0, -4.0, -1.0, 0.0, 1.0, 4.0, 64.0])
+    gaps = np.concatenate([gaps, reach * np.array([0.5, 0.999, 1.001, 1.4])])
+    k = len(gaps)
+    shift = np.array([0.01, -0.02])  # B slid a little, so that vertices face faces
+    position_b = np.column_stack([np.tile(shift, (k, 1)), gaps])
+    unit = np.tile([1.0, 0.0, 0.0, 0.0], (k, 1))
+    args = (np.zeros(k, int), np.zeros((k, 3)), unit, np.zeros(k, int), position_b, unit)
+    keys = np.arange(k, dtype=np.int64)
+    cache = PairCache(skin=SKIN)
+    want = bank.find_contacts(*args, kernel=kernel)
+    found = np.diff(want.pair_offsets)
+    assert found[gaps < reach * 0.9].min() > 0 and found[-1] == 0  # contact, then none
+    for served in (0, 1):  # a call that makes the lists, then one they serve
+        got = bank.find_contacts(*args, kernel=kernel, cache=cache, keys=keys)
+        assert (got.counts[:, 6] == served).all()
+        for name in ("pair_offsets", "pairs", "contact_offsets", "points", "normals"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), name)
+        np.testing.assert_array_equal(got.overlaps, want.overlaps)
