@@ -50,25 +50,35 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
     points = np.empty((m, 3))
     normals = np.empty((m, 3))
     overlaps = np.empty(m)
-    last = -1  # the row before, when its values can be reused (its points apart)
+    copies = np.empty(m)  # how many consecutive rows each distinct row stands for
+    u = 0  # distinct rows so far
+    # the values of the last distinct row, while it can stand for more (its points apart,
+    # a merge radius above 0: a radius of 0 keeps every row a contact of its own)
+    reusable = False
+    last_d, a0, a1, a2 = _f64(0.0), _f64(0.0), _f64(0.0), _f64(0.0)
+    b0, b1, b2 = _f64(0.0), _f64(0.0), _f64(0.0)
     for s in range(m):
         t = rows[order[s]]
         fa = face_a[node_i[t]]
         out_pairs[s, 0], out_pairs[s, 1] = fa, face_b[node_j[t]]
-        if last >= 0 and _same_row(point_a, point_b, distance, t, last):
-            # the same values as the row before: the same contact point, normal, overlap
-            for c in range(3):
-                points[s, c], normals[s, c] = points[s - 1, c], normals[s - 1, c]
-            overlaps[s] = overlaps[s - 1]
-            continue
-        last = -1
+        d = _f64(distance[t])
         p0, p1, p2 = _f64(point_a[0, t]), _f64(point_a[1, t]), _f64(point_a[2, t])
-        g0, g1, g2 = (
-            _f64(point_b[0, t]) - p0,
-            _f64(point_b[1, t]) - p1,
-            _f64(point_b[2, t]) - p2,
-        )
-        points[s, 0], points[s, 1], points[s, 2] = (
+        q0, q1, q2 = _f64(point_b[0, t]), _f64(point_b[1, t]), _f64(point_b[2, t])
+        if (
+            reusable
+            and d == last_d
+            and p0 == a0
+            and p1 == a1
+            and p2 == a2
+            and q0 == b0
+            and q1 == b1
+            and q2 == b2
+        ):  # the same values as the row before: the same point, normal, overlap, cluster
+            copies[u - 1] += 1.0
+            continue
+        reusable = False
+        g0, g1, g2 = q0 - p0, q1 - p1, q2 - p2
+        points[u, 0], points[u, 1], points[u, 2] = (
             p0 + weight * g0,
             p1 + weight * g1,
             p2 + weight * g2,
@@ -77,17 +87,29 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
         # decide on the points' own gap: a (float32) distance can be positive while
         # the two points round to the same coordinates
         if length > tiny:
-            normals[s, 0], normals[s, 1], normals[s, 2] = (
+            normals[u, 0], normals[u, 1], normals[u, 2] = (
                 g0 / length,
                 g1 / length,
                 g2 / length,
             )
-            last = t
+            reusable = radius > 0
+            last_d, a0, a1, a2, b0, b1, b2 = d, p0, p1, p2, q0, q1, q2
         else:
             for c in range(3):
-                normals[s, c] = normals_a[fa, c]
-        overlaps[s] = min(max(ea + eb - _f64(distance[t]), 0.0), ea + eb)
-    k = _merge(points, normals, overlaps, radius, out_points, out_normals, out_overlaps)
+                normals[u, c] = normals_a[fa, c]
+        overlaps[u] = min(max(ea + eb - d, 0.0), ea + eb)
+        copies[u] = 1.0
+        u += 1
+    k = _merge(
+        points[:u],
+        normals[:u],
+        overlaps[:u],
+        copies[:u],
+        radius,
+        out_points,
+        out_normals,
+        out_overlaps,
+    )
     for s in range(k):  # to the world frame
         p0, p1, p2 = out_points[s, 0], out_points[s, 1], out_points[s, 2]
         n0, n1, n2 = out_normals[s, 0], out_normals[s, 1], out_normals[s, 2]
@@ -96,20 +118,6 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
             out_points[s, c] = r0 * p0 + r1 * p1 + r2 * p2 + position[c]
             out_normals[s, c] = r0 * n0 + r1 * n1 + r2 * n2
     return m, k
-
-
-@njit(**BORROW)
-def _same_row(point_a, point_b, distance, t, u):
-    """Rows ``t`` and ``u`` of a search's results hold the same points and distance."""
-    return (
-        distance[t] == distance[u]
-        and point_a[0, t] == point_a[0, u]
-        and point_a[1, t] == point_a[1, u]
-        and point_a[2, t] == point_a[2, u]
-        and point_b[0, t] == point_b[0, u]
-        and point_b[1, t] == point_b[1, u]
-        and point_b[2, t] == point_b[2, u]
-    )
 
 
 @njit(**JIT)
@@ -143,12 +151,14 @@ def key_order(keys):
 
 
 @njit(**JIT)
-def _merge(points, normals, overlaps, radius, out_points, out_normals, out_overlaps):
+def _merge(points, normals, overlaps, copies, radius, out_points, out_normals, out_overlaps):
     """Greedy merging (see :func:`contact_kernel`) into the ``out_*`` rows; returns the count.
 
-    ``points, normals (m, 3)``, ``overlaps (m,)`` float64 in; ``out_*`` the same, first ``k``
-    rows written. A point joins the nearest cluster whose first (deepest) point lies within
-    ``radius``; a cluster becomes the average of its points and of its overlaps, and takes the
+    ``points, normals (m, 3)``, ``overlaps (m,)`` float64 in, each row standing for
+    ``copies (m,)`` float64 equal rows (an average weighs it so; with ``radius > 0`` the
+    copies would all join its cluster); ``out_*`` the same, first ``k`` rows written. A
+    point joins the nearest cluster whose first (deepest) point lies within ``radius``; a
+    cluster becomes the average of its points and of its overlaps, and takes the
     normal of its deepest member (the first in the stable order of decreasing overlap): the
     direction of the two bodies' least distance there. An average of the members' normals
     would mix in leaf pairs that only touch across an internal edge of a flat region (two
@@ -196,10 +206,11 @@ def _merge(points, normals, overlaps, radius, out_points, out_normals, out_overl
         if count[c] == 0:  # the deepest member
             for x in range(3):
                 out_normals[c, x] = normals[s, x]
-        count[c] += 1
-        out_overlaps[c] += overlaps[s]
+        w = copies[s]
+        count[c] += w
+        out_overlaps[c] += w * overlaps[s]
         for x in range(3):
-            out_points[c, x] += points[s, x]
+            out_points[c, x] += w * points[s, x]
     for c in range(k):
         out_overlaps[c] /= count[c]
         for x in range(3):

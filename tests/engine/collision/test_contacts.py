@@ -167,7 +167,7 @@ def test_merge_averages_clusters_of_close_points():
     normals = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [1, 0, 0]], float)
     overlaps = np.array([0.02, 0.01, 0.015, 0.005, 0.001])
     p, n, o = np.empty((5, 3)), np.empty((5, 3)), np.empty(5)
-    k = _merge(points, normals, overlaps, 0.01, p, n, o)
+    k = _merge(points, normals, overlaps, np.ones(5), 0.01, p, n, o)
     p, n, o = p[:k], n[:k], o[:k]
     assert k == 3  # clusters {0, 1}, {2, 3}, {4}; deepest first
     np.testing.assert_allclose(p[0], [0.002, 0, 0])
@@ -179,7 +179,7 @@ def test_merge_averages_clusters_of_close_points():
     np.testing.assert_allclose(p[2], [5, 5, 5])
     np.testing.assert_allclose(n[2], [1, 0, 0])
     # equal depths: the first of the stable order (the contact kernel sorts by face pair)
-    k = _merge(points[:2], normals[:2], np.array([0.01, 0.01]), 0.01, p, n, o)
+    k = _merge(points[:2], normals[:2], np.array([0.01, 0.01]), np.ones(2), 0.01, p, n, o)
     assert k == 1
     np.testing.assert_allclose(n[0], [1, 0, 0])
 

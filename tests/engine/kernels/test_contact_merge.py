@@ -1,6 +1,7 @@
-"""``contact_kernel``'s shortcuts change no result: rows equal to the row before reuse its
-contact point, normal and overlap; ``_merge`` skips the sort of overlaps already in
-non-increasing order and gives a point equal to the one before the same cluster. Checked
+"""``contact_kernel``'s shortcuts change no result beyond rounding: rows equal to the row
+before are counted, not repeated (``_merge`` weighs each distinct row by its copies);
+``_merge`` skips the sort of overlaps already in non-increasing order and gives a point
+equal to the one before the same cluster. Checked
 against a plain Python transcription of the documented algorithm on rows with many repeats
 (the pole fans of the "aligned" sphere grid give hundreds of equal rows a body pair)."""
 
@@ -71,7 +72,7 @@ def test_merge_of_repeated_points_is_the_greedy_merge(seed, radius):
     if seed % 2:
         overlaps = np.sort(overlaps)[::-1].copy()  # the sort-free path
     k_out = np.empty((m, 3)), np.empty((m, 3)), np.empty(m)
-    k = _merge(points, normals, overlaps, radius, *k_out)
+    k = _merge(points, normals, overlaps, np.ones(m), radius, *k_out)
     want = _reference_merge(points, normals, overlaps, radius)
     assert k == len(want[0])
     for got, ref in zip(k_out, want, strict=True):
@@ -114,3 +115,23 @@ def test_contact_kernel_on_repeated_rows(seed):
     assert k == len(want[0])
     for got, ref in zip(out[1:], want, strict=True):
         np.testing.assert_allclose(got[:k], ref, rtol=1e-13, atol=1e-15)
+
+
+@pytest.mark.parametrize("radius", [1e-9, 0.3, 1.5])
+@pytest.mark.parametrize("seed", range(4))
+def test_a_weighted_row_merges_as_its_copies(seed, radius):
+    """A row standing for w equal rows merges as those w rows would (rounding apart), for
+    any merge radius above 0 (``contact_kernel`` counts copies only then)."""
+    rng = np.random.default_rng(seed)
+    m = 40
+    points, runs = _repeated_rows(rng, m, 11)
+    normals = rng.normal(size=(m, 3))
+    overlaps = rng.integers(0, 3, 11).astype(float)[runs]
+    copies = rng.integers(1, 6, m).astype(float)
+    k_out = np.empty((m, 3)), np.empty((m, 3)), np.empty(m)
+    k = _merge(points, normals, overlaps, copies, radius, *k_out)
+    expanded = np.repeat(np.arange(m), copies.astype(int))
+    want = _reference_merge(points[expanded], normals[expanded], overlaps[expanded], radius)
+    assert k == len(want[0])
+    for got, ref in zip(k_out, want, strict=True):
+        np.testing.assert_allclose(got[:k], ref, rtol=1e-14, atol=1e-15)
