@@ -103,7 +103,7 @@ def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scrat
     return found, n, face_b
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _sure_contacts(rm, index_a, index_b, m, one, work, out, n):
     """Append pairs ``(index_a[t], index_b[t])``, ``t < m``, of rows of ``rm = (A's
     coords, frames, B's coords, frames)`` to ``out`` after its first ``n`` rows (room

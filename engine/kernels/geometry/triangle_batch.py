@@ -91,7 +91,7 @@ def _extent(f, i, one):
     return one / sqrt(min(f[9, i], min(f[10, i], f[11, i])))
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def bound_rows(a, fa, i, b, fb, eps_i, eps_b, one, band_factor, margin):
     """``margin[j] = L − (ε + band)`` for pairs (i, j), L the centroid-axis lower bound.
 
@@ -117,7 +117,7 @@ def _longest_edge(v0, v1, v2):
     return sqrt(max(e1, max(e2, e3)))
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def bound_paired(a, b, m, eps, one, band_factor, margin):
     """As :func:`bound_rows` for pairs (t, t) with contact distances ``eps[t]``.
 
@@ -136,7 +136,7 @@ def bound_paired(a, b, m, eps, one, band_factor, margin):
         margin[t] = low - (eps[t] + band)
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def iterate_paired(a, fa, b, fb, m, iterations, one, band_factor, scratch):
     """Iterative kernel on pairs (t, t), ``0 ≤ t < m ≤ BLOCK``.
 
@@ -288,7 +288,7 @@ def workspace(a):
     )
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _resolve(m, params, work, n, out, stats):
     """Contacts among the ``m ≤ BLOCK`` pairs gathered in ``work``; returns the new count.
 
@@ -368,7 +368,7 @@ def _move_column(ga, gfa, gb, gfb, gi, gj, geps, k, c):
     gi[c], gj[c], geps[c] = gi[k], gj[k], geps[k]
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def _flush(rm, c, params, work, n, out, stats):
     """Gather the ``c`` queued candidates (``work`` indices gi, gj) and resolve them.
 
@@ -457,7 +457,7 @@ def listed_workspace(a):
     )
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def listed_kernel(rm, eps_a, eps_b, pairs, start, stop, params, buffers, out, n, stats):
     """Contacts among listed pairs ``pairs[t] = (i, j)`` (int64), ``start ≤ t < stop``.
 

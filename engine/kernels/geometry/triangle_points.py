@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.geometry.triangle_exact import exact_pair
-from engine.kernels.jit import INLINE, JIT, select, sqrt
+from engine.kernels.jit import BORROW, INLINE, JIT, select, sqrt
 
 BLOCK = 256  # pairs per block of the batch kernels (and rows of :func:`point_rows`)
 
@@ -48,7 +48,7 @@ def _pair(a, i, b, j):
     )
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def exact_paired(a, fa, b, fb, m, one, dist):
     """Exact distance ``dist[t]`` of pairs (t, t), ``0 ≤ t < m``.
 
@@ -64,7 +64,7 @@ def exact_paired(a, fa, b, fb, m, one, dist):
         dist[t] = sqrt(exact_pair(a0, a1, a2, _frame(fa, t), b0, b1, b2, _frame(fb, t), one)[0])
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def exact_rows(a, fa, i, b, fb, one, dist):
     """Exact distance ``dist[j]`` of pairs (i, j) for every j."""
     for j in range(b.shape[1]):
@@ -72,7 +72,7 @@ def exact_rows(a, fa, i, b, fb, one, dist):
         dist[j] = sqrt(exact_pair(a0, a1, a2, _frame(fa, i), b0, b1, b2, _frame(fb, j), one)[0])
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def exact_points(a, fa, b, fb, m, one, d, pax, pay, paz, pbx, pby, pbz):
     """Exact distance ``d[t]`` and closest points ``(pax, pay, paz)[t]`` on A and ``(pbx,
     pby, pbz)[t]`` on B (input frame) of pairs (t, t), ``0 ≤ t < m``: :func:`exact_point`'s
@@ -111,7 +111,7 @@ def point_rows(like):
     )
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def exact_point(a, fa, i, b, fb, j, one):
     """Exact ``(distance, p, q)`` of one pair (i, j); points in the input frame."""
     o, a0, a1, a2, b0, b1, b2 = _pair(a, i, b, j)
@@ -195,7 +195,7 @@ def _vertices(a, i):
     return (a[0, i], a[1, i], a[2, i]), (a[3, i], a[4, i], a[5, i]), (a[6, i], a[7, i], a[8, i])
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def vertex_point(a, i, b, j, one):
     """:func:`vertex_pair` of pair (i, j) of triangle sets ``a (9, na)``, ``b (9, nb)``."""
     a0, a1, a2 = _vertices(a, i)
@@ -203,7 +203,7 @@ def vertex_point(a, i, b, j, one):
     return vertex_pair(a0, a1, a2, b0, b1, b2, one)
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def vertex_points(a, b, m, one, d, pax, pay, paz, pbx, pby, pbz):
     """:func:`vertex_pair` of pairs (t, t), ``0 ≤ t < m``, vectorised; outputs as
     :func:`exact_points`' (``d[t] = −1``: refused, points then meaningless)."""
@@ -216,7 +216,7 @@ def vertex_points(a, b, m, one, d, pax, pay, paz, pbx, pby, pbz):
         pbx[t], pby[t], pbz[t] = q
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def certified_points(a, fa, b, fb, m, one, final, rows):
     """Distance and closest points of pairs (t, t), ``0 ≤ t < m``, as a contact records
     them: :func:`vertex_pair`'s where it certifies the pair, else :func:`exact_points`'.
@@ -250,7 +250,7 @@ def certified_points(a, fa, b, fb, m, one, final, rows):
             e += 1
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def gather_rows(coords, frames, idx, m, coords_out, frames_out):
     """``coords_out[:, k] = coords[idx[k]]``, ``frames_out[:, k] = frames[idx[k]]``,
     ``k < m``: a triangle's row-major coordinates (9) and frame (14), unrolled."""
@@ -262,7 +262,7 @@ def gather_rows(coords, frames, idx, m, coords_out, frames_out):
             frames_out[c, k] = frames[i, c]
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def copy_columns(src, t0, m, dst):
     """``dst[:, k] = src[:, t0 + k]`` for ``k < m`` (an explicit loop compiles faster
     than Numba's generic slice assignment)."""
@@ -271,7 +271,7 @@ def copy_columns(src, t0, m, dst):
             dst[c, k] = src[c, t0 + k]
 
 
-@njit(**JIT)
+@njit(**BORROW)
 def gather_coords(src, pairs, side, t0, m, dst):
     """``dst[:, k] = src[pairs[t0 + k, side], :]``: coordinates, unrolled."""
     for k in range(m):
