@@ -170,7 +170,9 @@ def traverse(
     eps_a = np.empty(na, dtype)
     eps_b = np.empty(nb, dtype)
     found = result_buffers(256, coords_a)
-    to_move = np.zeros(64, np.int64)  # the root first
+    # B's nodes to move this level (each node is moved once: nb entries always suffice; an
+    # array reassigned inside the loops below would be reference-counted on every pass)
+    to_move = np.zeros(nb, np.int64)  # the root first
     move_kernel(master_coords, master_frames, to_move[:1], rotation, shift, coords_b, frames_b)
     moved[0], seen_a[0] = True, True
     _eps(epsilon_a, face_a, ZERO, margin, inflate, eps_a)
@@ -214,6 +216,19 @@ def traverse(
         )
         hi, hj = hits[0], hits[1]
         unfoldings += h
+        # room for the level's children, made before the loop (see ``to_move``)
+        most_a, most_b, most_pairs = ZERO, ZERO, ZERO
+        for k in range(h):
+            a0, a1 = _children(face_a, first_a, count_a, hi[k])
+            b0, b1 = _children(face_b, first_b, count_b, hj[k])
+            most_a, most_b = max(most_a, a1 - a0), max(most_b, b1 - b0)
+            most_pairs += (a1 - a0) * (b1 - b0)
+        if keep_a.shape[0] < most_a:
+            keep_a = np.empty(2 * most_a, np.int64)
+        if keep_b.shape[0] < most_b:
+            keep_b = np.empty(2 * most_b, np.int64)
+        if following.shape[0] < most_pairs:  # filled from its first row: nothing to keep
+            following = np.empty((max(most_pairs, 2 * following.shape[0]), 2), np.int64)
         r = ZERO
         new = ZERO
         for k in range(h):
@@ -221,10 +236,6 @@ def traverse(
             # both nodes unfold (a leaf stands for itself): every pair of the two sides
             a0, a1 = _children(face_a, first_a, count_a, i)
             b0, b1 = _children(face_b, first_b, count_b, j)
-            if keep_a.shape[0] < a1 - a0:
-                keep_a = np.empty(2 * (a1 - a0), np.int64)
-            if keep_b.shape[0] < b1 - b0:
-                keep_b = np.empty(2 * (b1 - b0), np.int64)
             ka = ZERO  # A's children near j's sphere (a leaf i: itself, tested with j)
             for ca in range(a0, a1):
                 if a1 - a0 == 1 or not _far(spheres_a, ca, centres_b, spheres_b, j, reach):
@@ -239,8 +250,6 @@ def traverse(
                     if boxed:
                         place_row(boxes_b, cb, rotation, shift, placed_b, placed)
             cross = a1 - a0 > 1 and b1 - b0 > 1  # else the tests above were the pairs'
-            if following.shape[0] < r + ka * kb:
-                following = _grown_pairs(following, r, r + ka * kb)
             r0 = r
             for u in range(ka):
                 ca = keep_a[u]
@@ -258,8 +267,6 @@ def traverse(
                     if not moved[cb]:
                         moved[cb] = True
                         _eps(epsilon_b, face_b, cb, margin, inflate, eps_b)
-                        if new == to_move.shape[0]:
-                            to_move = _grown(to_move, new)
                         to_move[new] = cb
                         new += 1
             pruned += (a1 - a0) * (b1 - b0) - (r - r0)
@@ -537,14 +544,6 @@ def _eps(epsilon, face, i, margin, inflate, out):
     out[i] = epsilon[i] + (margin if face[i] < 0 else 0.0)
     if inflate > 0.0:
         out[i] += inflate
-
-
-@njit(**JIT)
-def _grown(index, n):
-    """``(2·len,)`` int64 holding the first ``n`` entries of ``index``."""
-    grown = np.empty(2 * index.shape[0], np.int64)
-    grown[:n] = index[:n]
-    return grown
 
 
 @njit(**JIT)
