@@ -26,6 +26,7 @@ from engine.errors import InvalidArgumentError
 from engine.geometry.distance import DEFAULT_PRECISION
 from engine.geometry.pose import Pose
 from engine.kernels.collision import batch as kb
+from engine.kernels.collision.pair_lists import join_lists
 from engine.trees.tree import SurrogateTree
 from engine.workers import worker_pool
 
@@ -174,33 +175,47 @@ class PairCache:
         )
 
     def _replace(
-        self, keys: np.ndarray, slots: np.ndarray, kept: np.ndarray, batch: kb.BatchResult
+        self,
+        keys: np.ndarray,
+        slots: np.ndarray,
+        kept: np.ndarray,
+        batch: kb.BatchResult,
+        parts: list[kb.BatchResult],
     ) -> None:
         """Hold exactly the pairs ``keys (k,)``: entry ``slots[q]`` where ``kept[q]`` (the
-        query used its list, which stays valid), else the query's new list in ``batch``
-        (its ``near_offsets``, ``near``, ``near_distances``, ``rotations`` and ``shifts``)."""
-        near_offsets, near, rotations, shifts = (
-            batch.near_offsets, batch.near, batch.rotations, batch.shifts
-        )  # fmt: skip
+        query used its list, which stays valid), else the query's new list: ``batch``'s
+        ``near_offsets``, ``rotations`` and ``shifts``, and the rows ``near``,
+        ``near_distances`` of the worker chunks ``parts`` (in order; joined here, once)."""
         if kept.all() and np.array_equal(keys, self.keys):
             return  # the same pairs, every list kept: nothing to copy
+        near_offsets = batch.near_offsets
+        near = _joined([part.near for part in parts])
+        near_distances = _joined([part.near_distances for part in parts])
         order = np.argsort(keys, kind="stable")
+        identity = bool((order == np.arange(len(order))).all())
+        if identity and not kept.any():  # every list new, in key order: the rows as made
+            self.keys = np.ascontiguousarray(keys, np.int64)
+            self.rotations, self.shifts = batch.rotations, batch.shifts
+            self.offsets, self.near, self.distances = near_offsets, near, near_distances
+            return
         slots, kept = slots[order], kept[order]
         fresh = np.diff(near_offsets)[order]
         sizes = np.where(kept, self.offsets[slots + 1] - self.offsets[slots], fresh)
         offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-        source = np.where(kept, self.offsets[slots], near_offsets[:-1][order])
-        rows = np.repeat(source - offsets[:-1], sizes) + np.arange(int(offsets[-1]))
-        old = np.repeat(kept, sizes)
         lists = np.empty((int(offsets[-1]), 2), np.int64)
-        lists[old] = self.near[rows[old]]
-        lists[~old] = near[rows[~old]]
         distances = np.empty(int(offsets[-1]))
-        distances[old] = self.distances[rows[old]]
-        distances[~old] = batch.near_distances[rows[~old]]
+        join_lists(
+            sizes.astype(np.int64),
+            self.offsets[slots],
+            near_offsets[:-1][order],
+            kept,
+            (self.near, self.distances),
+            (near, near_distances),
+            (lists, distances),
+        )
         self.keys = np.ascontiguousarray(keys[order], np.int64)
-        self.rotations = rotations[order]
-        self.shifts = shifts[order]
+        self.rotations = batch.rotations[order]
+        self.shifts = batch.shifts[order]
         self.offsets, self.near, self.distances = offsets, lists, distances
 
 
@@ -368,7 +383,7 @@ class TreeBank:
             parts = [f.result() for f in futures]
         joined = _join(parts)
         if cache is not None:
-            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, joined)
+            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, joined, parts)
         return ContactBatch(
             joined.pair_offsets,
             tuple(part.pairs for part in parts),
@@ -433,19 +448,29 @@ def find_contacts_batch(
 
 def _join(parts: list[kb.BatchResult]) -> kb.BatchResult:
     """The results of consecutive chunks of queries as one (one chunk: as it is), except
-    ``pairs``, left empty: :class:`ContactBatch` keeps the chunks' own."""
+    ``pairs``, ``near`` and ``near_distances``, left empty: :class:`ContactBatch` keeps the
+    chunks' own pairs, and :meth:`PairCache._replace` joins the lists only where it needs
+    them (the paper's "aligned" grid makes 32 M rows of lists)."""
     if len(parts) == 1:
         return parts[0]
+    rows = ("pairs", "near")
     return kb.BatchResult(
         *(
             _offsets([getattr(p, name) for p in parts])
             if name.endswith("_offsets")
             else np.zeros((0, 2), np.int64)
-            if name == "pairs"
+            if name in rows
+            else np.zeros(0)
+            if name == "near_distances"
             else np.concatenate([getattr(p, name) for p in parts])
             for name in kb.BatchResult._fields
         )
     )
+
+
+def _joined(chunks: list[np.ndarray]) -> np.ndarray:
+    """The chunks' rows as one array (one chunk: itself)."""
+    return chunks[0] if len(chunks) == 1 else np.concatenate(chunks)
 
 
 def _offsets(chunks: list[np.ndarray]) -> np.ndarray:

@@ -248,3 +248,26 @@ def _packed(bank, b0, moving, rotation, shift, like):
     frames = np.empty((u, 14), like.dtype)
     move_kernel(master_coords, master_frames, np.arange(u), rotation, shift, coords, frames)
     return coords, frames, eps, face
+
+
+@njit(**BORROW)
+def join_lists(sizes, old_start, new_start, kept, old, new, out):
+    """Copy each entry's list into ``out = (near (L, 2) int64, distances (L,) float64)``,
+    entry after entry (``sizes (k,)`` int64 rows each): entry q's rows come from ``old =
+    (near, distances)`` at row ``old_start[q]`` where ``kept[q]``, else from ``new`` (the
+    same layout) at ``new_start[q]``. One pass over the rows (the pair cache's renewal: on
+    the paper's "aligned" grid 32 M rows, where index arrays and fancy indexing took four
+    passes and 3.8 s)."""
+    near_out, distances_out = out
+    row = 0
+    for q in range(sizes.shape[0]):
+        src_near, src_distances = new
+        start = new_start[q]
+        if kept[q]:
+            src_near, src_distances = old
+            start = old_start[q]
+        for t in range(sizes[q]):
+            near_out[row, 0] = src_near[start + t, 0]
+            near_out[row, 1] = src_near[start + t, 1]
+            distances_out[row] = src_distances[start + t]
+            row += 1

@@ -135,10 +135,12 @@ def test_batch_rejects_malformed_queries(trees):
     assert find_contacts_batch([]) == []
 
 
+@pytest.mark.parametrize("keys_order", ["sorted", "shuffled"])
 @pytest.mark.parametrize("precision", ["float64", "float32"])
-def test_pair_cache_gives_the_traversal_bits_while_bodies_move(trees, precision):
+def test_pair_cache_gives_the_traversal_bits_while_bodies_move(trees, precision, keys_order):
     """A random walk of many body pairs through contact: with the cache's lists (and
-    their renewals) every step's contacts equal a fresh traversal's, bit for bit."""
+    their renewals, kept and new lists joined in the order of the keys) every step's
+    contacts equal a fresh traversal's, bit for bit."""
     from engine import PairCache
 
     bank = TreeBank(trees, precision)
@@ -153,6 +155,8 @@ def test_pair_cache_gives_the_traversal_bits_while_bodies_move(trees, precision)
     qb = np.array([q[3].orientation for q in queries])
     cache = PairCache(skin=0.5)
     keys = np.arange(len(queries)) * 3 + 1
+    if keys_order == "shuffled":
+        keys = rng.permutation(keys)
     listed = rebuilt = touching = 0
     for _ in range(60):
         got = bank.find_contacts(ta, pa, qa, tb, pb, qb, cache=cache, keys=keys, threads=2)
