@@ -47,9 +47,9 @@ class ContactBatch:
     pair_offsets, contact_offsets : (k + 1,) int64
     pairs : (m, 2) int64 — (face of A, face of B) per pair, sorted within each pair;
         held as ``pair_chunks`` (the worker chunks' rows, in order) and joined on first
-        access: a scene step reads only their count, ``pair_offsets[-1]`` (on the paper's
-        "aligned" grid 16 M rows, 256 MB an evaluation, whose copy took 0.76 s of a 4 s
-        evaluation on the main thread)
+        access; none for a call that counted them only (:meth:`TreeBank.run` with
+        ``keep_pairs=False``: a scene step reads only their count, ``pair_offsets[-1]``;
+        on the paper's "aligned" grid 16 M rows, 256 MB an evaluation)
     points, normals : (c, 3) float64 — world frame; normals unit, from A to B
     overlaps : (c,) float64
     levels : (k, MAX_LEVELS) int64 — comparisons per level of each pair
@@ -73,6 +73,11 @@ class ContactBatch:
     def pairs(self) -> np.ndarray:
         """(m, 2) int64: ``pair_chunks`` joined (once)."""
         chunks = self.pair_chunks
+        if not chunks:
+            raise InvalidArgumentError(
+                "this batch counted its face pairs without keeping them"
+                " (TreeBank.run(..., keep_pairs=False)); run it with keep_pairs=True"
+            )
         return chunks[0] if len(chunks) == 1 else np.concatenate(chunks)
 
     def __getitem__(self, q: int) -> ContactSet:
@@ -337,11 +342,21 @@ class TreeBank:
         )
         return self.run(queries, kernel, threads, cache, keys)
 
-    def run(self, queries: tuple, kernel: str, threads: int | None, cache=None, keys=None):
+    def run(
+        self,
+        queries: tuple,
+        kernel: str,
+        threads: int | None,
+        cache=None,
+        keys=None,
+        keep_pairs: bool = True,
+    ):
         """Run queries that are already valid (:meth:`find_contacts` checks them; the
         scene's own arrays are valid by construction), optionally through a
         :class:`PairCache` under ``keys (k,) int64``. ``queries``: a
-        :class:`~engine.kernels.collision.batch.PairQueries`, or its six arrays in order."""
+        :class:`~engine.kernels.collision.batch.PairQueries`, or its six arrays in order.
+        ``keep_pairs=False`` counts the face pairs (``pair_offsets``) without writing them
+        (``pairs`` then raises): a scene step reads only their count."""
         queries = kb.PairQueries(*queries)
         k = len(queries.tree_a)
         slots = None if cache is None else cache._slots(keys)
@@ -353,6 +368,7 @@ class TreeBank:
             keep_all=kernel != "iterative",
             ulp=ULP[self.dtype],
             tiny=TINY,
+            keep_pairs=bool(keep_pairs),
         )
         counts = np.zeros((k, kb.N_COUNTS), np.int64)
         levels = np.zeros((k, MAX_LEVELS), np.int64)
@@ -386,7 +402,7 @@ class TreeBank:
             cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, joined, parts)
         return ContactBatch(
             joined.pair_offsets,
-            tuple(part.pairs for part in parts),
+            tuple(part.pairs for part in parts) if keep_pairs else (),
             joined.contact_offsets,
             joined.points,
             joined.normals,

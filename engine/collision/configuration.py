@@ -88,12 +88,12 @@ def batched_contacts(
     a, b = pairs[:, 0], pairs[:, 1]
     queries = kb.PairQueries(tree_index[a], tree_index[b], origins[a], unit[a], origins[b], unit[b])
     keys = a * len(tree_index) + b
-    batch = bank.run(queries, kernel, threads, cache, keys)
+    batch = bank.run(queries, kernel, threads, cache, keys, keep_pairs=False)
     totals = batch.counts.sum(axis=0)
     counters = dict.fromkeys(SEARCH_COUNTERS, 0)
     for name, column in _BATCH_COUNTERS:
         counters[name] = int(totals[column])
-    counters["triangle_pairs"] = int(batch.pair_offsets[-1])  # batch.pairs is joined lazily
+    counters["triangle_pairs"] = int(batch.pair_offsets[-1])  # counted, not kept
     return Contacts(
         pairs, batch.contact_offsets, batch.points, batch.normals, batch.overlaps, counters
     )

@@ -91,6 +91,7 @@ class QueryParams(NamedTuple):
     keep_all: bool  # keep every leaf pair found, else only the certified ones (status 1)
     ulp: float  # machine epsilon of the query precision (for the margin)
     tiny: float  # gap below which two closest points coincide, per unit bounding radius
+    keep_pairs: bool  # write the (face of A, face of B) pairs, else only count them
 
 
 class PairLists(NamedTuple):
@@ -185,10 +186,14 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     # a listed query's face pairs are a subset of its list: room for all of them at once
     # (touched only where written), so a chunk of the aligned grid (~2 M rows) does not
     # grow by doubling (each copy and page fault of 16-byte rows cost as much as the rows)
-    room = 64
+    # Without ``keep_pairs`` the pairs are counted only: the buffer stays empty, and
+    # ``contact_kernel`` writes no pair into an empty one (a scene step reads the count; on
+    # the "aligned" grid the pairs were 256 MB an evaluation, whose first touch of fresh
+    # pages was 43 % of a steady step).
+    room = 64 if params.keep_pairs else 0
     for t in range(k):
         e = lists.slot[start + t] if lists.slot.shape[0] > 0 else -1
-        if e >= 0:
+        if e >= 0 and params.keep_pairs:
             room += lists.offsets[e + 1] - lists.offsets[e]
     pairs = np.empty((room, 2), np.int64)
     near_out = np.empty((64, 2), np.int64)
@@ -240,13 +245,14 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             )
             depth, unfoldings, n1 = 0, 0, n0  # a kept list stays put
             rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
-            pairs = _grow(pairs, p0, p0 + n)
+            if params.keep_pairs:
+                pairs = _grow(pairs, p0, p0 + n)
             points, normals_out, overlaps = (
                 _grow(points, c0, c0 + n),
                 _grow(normals_out, c0, c0 + n),
                 _grow(overlaps, c0, c0 + n),
             )
-            out = (pairs[p0:], points[c0:], normals_out[c0:], overlaps[c0:])
+            out = (pairs[min(p0, pairs.shape[0]) :], points[c0:], normals_out[c0:], overlaps[c0:])
             face_a = bank.face[a0:a1]
             m, c = contact_kernel(
                 found, n, face_a, face_b, contact[0], contact[1], contact[2], setup, out
@@ -288,13 +294,14 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             found_pairs, pts, nrm, ovl = result
             p1, c1 = p0 + found_pairs.shape[0], c0 + pts.shape[0]
             n1 = n0 + (near.shape[0] if skin > 0.0 else 0)
-            pairs = _grow(pairs, p0, p1)
+            if params.keep_pairs:
+                pairs = _grow(pairs, p0, p1)
+                pairs[p0:p1] = found_pairs
             points, normals_out, overlaps = (
                 _grow(points, c0, c1),
                 _grow(normals_out, c0, c1),
                 _grow(overlaps, c0, c1),
             )
-            pairs[p0:p1] = found_pairs
             points[c0:c1] = pts
             normals_out[c0:c1] = nrm
             overlaps[c0:c1] = ovl
@@ -328,7 +335,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     n_pairs, n_contacts, n_near = pair_offsets[k], contact_offsets[k], near_offsets[k]
     return BatchResult(
         pair_offsets,
-        pairs[:n_pairs],
+        pairs[: min(n_pairs, pairs.shape[0])],
         contact_offsets,
         points[:n_contacts],
         normals_out[:n_contacts],

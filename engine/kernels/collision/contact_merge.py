@@ -25,13 +25,13 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
 
     Writes ``out = (pairs (n, 2) int64, points, normals (n, 3), overlaps (n,))``
     (float64, world frame): the first ``m`` rows of ``pairs`` are the kept
-    (face of A, face of B) pairs in lexicographic order; the first ``k`` rows of
-    the others are the merged contacts. A contact lies on the closest-point
-    segment p→q, weighted by the ε's; its normal is (q − p)/|q − p| (A's face
-    normal when the points coincide); its overlap is ε_a + ε_b − d, clipped to
-    [0, ε_a + ε_b]. Points closer than the merge radius are merged greedily,
-    deepest first, into their average (overlaps averaged); a cluster's normal is its
-    deepest member's (see :func:`_merge`).
+    (face of A, face of B) pairs in lexicographic order (an empty ``pairs``: counted,
+    not written); the first ``k`` rows of the others are the merged contacts. A contact
+    lies on the closest-point segment p→q, weighted by the ε's; its normal is
+    (q − p)/|q − p| (A's face normal when the points coincide); its overlap is
+    ε_a + ε_b − d, clipped to [0, ε_a + ε_b]. Points closer than the merge radius are
+    merged greedily, deepest first, into their average (overlaps averaged); a cluster's
+    normal is its deepest member's (see :func:`_merge`).
     """
     node_i, node_j, distance, point_a, point_b, status = found
     ea, eb, tiny, radius, rotation, position = setup
@@ -57,10 +57,12 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
     reusable = False
     last_d, a0, a1, a2 = _f64(0.0), _f64(0.0), _f64(0.0), _f64(0.0)
     b0, b1, b2 = _f64(0.0), _f64(0.0), _f64(0.0)
+    write_pairs = out_pairs.shape[0] > 0
     for s in range(m):
         t = rows[order[s]]
         fa = face_a[node_i[t]]
-        out_pairs[s, 0], out_pairs[s, 1] = fa, face_b[node_j[t]]
+        if write_pairs:
+            out_pairs[s, 0], out_pairs[s, 1] = fa, face_b[node_j[t]]
         d = _f64(distance[t])
         p0, p1, p2 = _f64(point_a[0, t]), _f64(point_a[1, t]), _f64(point_a[2, t])
         q0, q1, q2 = _f64(point_b[0, t]), _f64(point_b[1, t]), _f64(point_b[2, t])

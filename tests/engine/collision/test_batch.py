@@ -103,6 +103,30 @@ def test_threaded_pairs_are_joined_on_first_access(trees):
         np.testing.assert_array_equal(threaded[q].pairs, single[q].pairs)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_counted_pairs_give_the_same_counts_and_contacts(trees, threads):
+    """``keep_pairs=False`` (a scene step) counts the face pairs without writing them,
+    through a traversal and through the pair cache's lists: the same offsets and contacts
+    as a call that keeps them, bit for bit; reading its pairs says how to get them."""
+    from engine import PairCache
+
+    bank = TreeBank(trees)
+    ta, pa, qa, tb, pb, qb = bank_arguments(trees, random_queries(trees, 300, seed=8))
+    index = np.array(ta, np.int64), np.array(tb, np.int64)
+    queries = (index[0], index[1], np.array(pa), np.array(qa), np.array(pb), np.array(qb))
+    keys = np.arange(300, dtype=np.int64)
+    caches = PairCache(0.5), PairCache(0.5)
+    for _ in range(2):  # lists made, then lists served
+        kept = bank.run(queries, "hybrid", threads, caches[0], keys)
+        counted = bank.run(queries, "hybrid", threads, caches[1], keys, keep_pairs=False)
+        assert kept.pair_offsets[-1] > 0 and counted.pair_chunks == ()
+        for name in ("pair_offsets", "contact_offsets", "points", "normals", "overlaps"):
+            np.testing.assert_array_equal(getattr(counted, name), getattr(kept, name))
+        np.testing.assert_array_equal(counted.counts, kept.counts)
+    with pytest.raises(InvalidArgumentError, match="keep_pairs=True"):
+        counted.pairs  # noqa: B018
+
+
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
