@@ -33,10 +33,12 @@ Results are written in place; points go to flat ``(3n,)`` views of the ``(n, 3)`
 and loops bounded by the constant :data:`CHUNK`, so LLVM sees affine accesses that cannot
 wrap; without that it refused to vectorise ("cannot identify array bounds", "too many SCEV
 assumptions"). Results equal ``triangle_paired.paired_kernel``'s bit for bit: the same
-operations on the same values. Hybrid fallbacks are queued (their raw triangles copied) and
-resolved a block at a time by :func:`exact_block`. One sweep only (the default): a runtime
-sweep count inside the pair loop would stop it from vectorising, so the host sends other
-counts to the block-buffer path.
+operations on the same values, except float32 exact closest points on an AVX-512 machine,
+where LLVM vectorises the two loops differently and a few points differ in their last bits
+(docs/kernels.md; distances, bounds and statuses stay bit for bit). Hybrid fallbacks are
+queued (their raw triangles copied) and resolved a block at a time by :func:`exact_block`.
+One sweep only (the default): a runtime sweep count inside the pair loop would stop it from
+vectorising, so the host sends other counts to the block-buffer path.
 """
 
 from __future__ import annotations
