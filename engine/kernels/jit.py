@@ -67,6 +67,10 @@ llvm.set_option("mrdem", "--runtime-memory-check-threshold=4096")
 llvm.set_option("mrdem", "--memory-check-merge-threshold=4096")
 llvm.set_option("mrdem", "--vectorize-memory-check-threshold=4096")
 
+HOST_AVX512 = bool(llvm.get_host_cpu_features().get("avx512f", False))
+"""The host has AVX-512 (the kernels are compiled for it): a few block sizes are tuned per
+vector width. Numba's cache is keyed on the CPU, so each machine compiles its own."""
+
 JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"contract", "arcp"}}
 EXACT_JIT = {**JIT, "fastmath": False}
 INLINE = {**JIT, "inline": "always"}

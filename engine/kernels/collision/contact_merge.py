@@ -60,9 +60,8 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
     write_pairs = out_pairs.shape[0] > 0
     for s in range(m):
         t = rows[order[s]]
-        fa = face_a[node_i[t]]
         if write_pairs:
-            out_pairs[s, 0], out_pairs[s, 1] = fa, face_b[node_j[t]]
+            out_pairs[s, 0], out_pairs[s, 1] = face_a[node_i[t]], face_b[node_j[t]]
         d = _f64(distance[t])
         p0, p1, p2 = _f64(point_a[0, t]), _f64(point_a[1, t]), _f64(point_a[2, t])
         q0, q1, q2 = _f64(point_b[0, t]), _f64(point_b[1, t]), _f64(point_b[2, t])
@@ -97,6 +96,7 @@ def contact_kernel(found, count, face_a, face_b, n_faces_b, keep_all, normals_a,
             reusable = radius > 0
             last_d, a0, a1, a2, b0, b1, b2 = d, p0, p1, p2, q0, q1, q2
         else:
+            fa = face_a[node_i[t]]
             for c in range(3):
                 normals[u, c] = normals_a[fa, c]
         overlaps[u] = min(max(ea + eb - d, 0.0), ea + eb)

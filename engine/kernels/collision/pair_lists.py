@@ -29,12 +29,15 @@ from engine.kernels.geometry.triangle_points import (
     exact_points,
     vertex_points,
 )
-from engine.kernels.jit import BORROW, JIT
+from engine.kernels.jit import BORROW, HOST_AVX512, JIT
 
-SURE_BLOCK = 32
-"""Pairs per call of ``exact_points`` for the sure contacts. Measured (float64, AVX2, the
-paper's "aligned" grid, 414 pairs a body pair): 32 pairs 65 µs, 64 pairs 74 µs, a full
-``BLOCK`` of 256 pairs 81 µs (the gathered rows of 256 pairs overflow L1)."""
+SURE_BLOCK = 256 if HOST_AVX512 else 32
+"""Pairs per call of the vertex–vertex certificate (and of ``exact_points`` for the pairs it
+refuses) among the sure contacts, per vector width. Measured on the paper's "aligned" grid
+(float64, a pole-to-pole pair's 1,296 listed pairs, µs a body pair): AVX2 32 pairs 65, 64
+pairs 74, 256 pairs 81 (the gathered rows of 256 pairs overflow L1); AVX-512 (Zen 5) 32
+pairs 41.6–42.5, 64 pairs 40.0, 128 pairs 39.1, 256 pairs 38.7
+(``benchmarks/grid_pairs.py``)."""
 
 
 @njit(**JIT)
