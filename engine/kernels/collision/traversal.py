@@ -172,7 +172,8 @@ def traverse(
     found = result_buffers(256, coords_a)
     # B's nodes to move this level (each node is moved once: nb entries always suffice; an
     # array reassigned inside the loops below would be reference-counted on every pass)
-    to_move = np.zeros(nb, np.int64)  # the root first
+    to_move = np.empty(nb, np.int64)
+    to_move[0] = 0  # the root first
     move_kernel(master_coords, master_frames, to_move[:1], rotation, shift, coords_b, frames_b)
     moved[0], seen_a[0] = True, True
     _eps(epsilon_a, face_a, ZERO, margin, inflate, eps_a)
