@@ -31,8 +31,8 @@ GDB_SCRIPT = r"""
 import gdb, os, re, signal, threading, time, json
 pid = gdb.selected_inferior().pid
 samples = []
-for _ in range(SAMPLES):
-    threading.Timer(INTERVAL, os.kill, (pid, signal.SIGINT)).start()
+for _ in range(__SAMPLES__):
+    threading.Timer(__INTERVAL__, os.kill, (pid, signal.SIGINT)).start()
     gdb.execute("continue", to_string=True)
     pc = int(gdb.selected_frame().pc())
     where = gdb.execute(f"info symbol {pc}", to_string=True).split(" in section")[0]
@@ -63,8 +63,8 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=400)
     parser.add_argument("--interval", type=float, default=0.01)
     args = parser.parse_args()
-    script = GDB_SCRIPT.replace("SAMPLES", str(args.samples), 1)
-    script = script.replace("INTERVAL", str(args.interval), 1)
+    script = GDB_SCRIPT.replace("__SAMPLES__", str(args.samples))
+    script = script.replace("__INTERVAL__", str(args.interval))
     with tempfile.NamedTemporaryFile("w", suffix=".py") as handle:
         handle.write(script)
         handle.flush()

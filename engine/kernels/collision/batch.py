@@ -188,8 +188,8 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     # grow by doubling (each copy and page fault of 16-byte rows cost as much as the rows)
     # Without ``keep_pairs`` the pairs are counted only: the buffer stays empty, and
     # ``contact_kernel`` writes no pair into an empty one (a scene step reads the count; on
-    # the "aligned" grid the pairs were 256 MB an evaluation, whose first touch of fresh
-    # pages was 43 % of a steady step).
+    # the "aligned" grid the pairs were 256 MB an evaluation, and ``contact_kernel``, which
+    # wrote them, 43 % of a steady step's samples).
     room = 64 if params.keep_pairs else 0
     for t in range(k):
         e = lists.slot[start + t] if lists.slot.shape[0] > 0 else -1

@@ -33,11 +33,11 @@ from engine.kernels.jit import BORROW, HOST_AVX512, JIT
 
 SURE_BLOCK = 256 if HOST_AVX512 else 32
 """Pairs per call of the vertex–vertex certificate (and of ``exact_points`` for the pairs it
-refuses) among the sure contacts, per vector width. Measured on the paper's "aligned" grid
-(float64, a pole-to-pole pair's 1,296 listed pairs, µs a body pair): AVX2 32 pairs 65, 64
-pairs 74, 256 pairs 81 (the gathered rows of 256 pairs overflow L1); AVX-512 (Zen 5) 32
-pairs 41.6–42.5, 64 pairs 40.0, 128 pairs 39.1, 256 pairs 38.7
-(``benchmarks/grid_pairs.py``)."""
+refuses) among the sure contacts, per vector width, float64, µs a body pair. AVX2, the
+paper's "aligned" grid (414 listed pairs a body pair on average): 32 pairs 65, 64 pairs 74,
+256 pairs 81 (the gathered rows of 256 pairs overflow L1). AVX-512 (Zen 5), its
+pole-to-pole pair (1,296 listed pairs; ``benchmarks/grid_pairs.py``): 32 pairs 41.6–42.5,
+64 pairs 40.0, 128 pairs 39.1, 256 pairs 38.7."""
 
 
 @njit(**JIT)
