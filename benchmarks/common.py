@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import platform
+import subprocess
 import time
 
 
@@ -39,3 +42,28 @@ def pareto_front(rows: list[dict], cost: str, error: str | tuple[str, ...]) -> l
         for r in rows
         if not any(all(o[k] <= r[k] for k in keys) and any(o[k] < r[k] for k in keys) for o in rows)
     ]
+
+
+def machine() -> dict:
+    """CPU model, vector ISA and versions of the run."""
+    import llvmlite.binding as llvm
+    import numba
+    import numpy as np
+
+    info = {"python": platform.python_version(), "numpy": np.__version__}
+
+    info["numba"] = numba.__version__
+    info["llvm_cpu"] = llvm.get_host_cpu_name()
+    info["cores"] = os.cpu_count()
+    try:
+        lscpu = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        for line in lscpu.splitlines():
+            if line.startswith("Model name:"):
+                info["cpu"] = line.split(":", 1)[1].strip()
+            if line.startswith("Flags:"):
+                flags = set(line.split(":", 1)[1].split())
+                isa = [f for f in ("avx2", "fma", "avx512f", "avx512vl", "avx512dq") if f in flags]
+                info["vector_isa"] = " ".join(isa)
+    except (OSError, subprocess.CalledProcessError):
+        info["cpu"] = platform.processor()
+    return info

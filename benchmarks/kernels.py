@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -39,7 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common import best_time  # noqa: E402
+from common import best_time, machine  # noqa: E402
 
 import engine  # noqa: E402
 from engine import TriangleSet, shapes, triangle_contacts, triangle_distances  # noqa: E402
@@ -47,29 +46,6 @@ from engine import TriangleSet, shapes, triangle_contacts, triangle_distances  #
 OUT = ROOT / "bench-results"
 KERNELS = ("exact", "iterative", "hybrid")
 PRECISIONS = ("float32", "float64")
-
-
-def machine() -> dict:
-    """CPU model, vector ISA and versions of the run."""
-    info = {"python": platform.python_version(), "numpy": np.__version__}
-    import llvmlite.binding as llvm
-    import numba
-
-    info["numba"] = numba.__version__
-    info["llvm_cpu"] = llvm.get_host_cpu_name()
-    info["cores"] = os.cpu_count()
-    try:
-        lscpu = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        for line in lscpu.splitlines():
-            if line.startswith("Model name:"):
-                info["cpu"] = line.split(":", 1)[1].strip()
-            if line.startswith("Flags:"):
-                flags = set(line.split(":", 1)[1].split())
-                isa = [f for f in ("avx2", "fma", "avx512f", "avx512vl", "avx512dq") if f in flags]
-                info["vector_isa"] = " ".join(isa)
-    except (OSError, subprocess.CalledProcessError):
-        info["cpu"] = platform.processor()
-    return info
 
 
 def sphere_pair(gap: float) -> tuple[np.ndarray, np.ndarray]:

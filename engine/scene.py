@@ -42,7 +42,7 @@ from engine.arguments import (
     coordinate_limit,
 )
 from engine.collision.batch import PairCache, TreeBank
-from engine.collision.broadphase import overlapping_pairs
+from engine.collision.broadphase import CandidateList
 from engine.collision.configuration import (
     Contacts,
     batched_contacts,
@@ -173,6 +173,7 @@ class Scene:
         self._trees = SceneTrees()  # each mesh built once, shifted per ε (engine.trees.halos)
         self._bank: TreeBank | None = None
         self._multiscale: MultiscaleSearch | None = None
+        self._candidates = CandidateList()  # the broad phase, kept while bodies stay near
         self.pair_cache = PairCache(skin)
         self.warm_start: WarmStart | None = None  # the last converged step's final forces
         self.body_cache = BodyCache()
@@ -450,7 +451,9 @@ class Scene:
             raise InvalidArgumentError(
                 f"body {bad // 3} is not at a finite position within the broad phase's range"
             )
-        return origins, overlapping_pairs(centres, np.ascontiguousarray(roots[:, 3]), self.fixed)
+        return origins, self._candidates.pairs(
+            centres, np.ascontiguousarray(roots[:, 3]), self.fixed
+        )
 
     def _roots(self) -> np.ndarray:
         """(n, 4) root bounding sphere (body frame) of each body, kept while the bodies

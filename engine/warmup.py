@@ -30,7 +30,7 @@ import numpy as np
 
 from engine.arguments import KERNELS, PRECISIONS
 from engine.collision.batch import find_contacts_batch
-from engine.collision.broadphase import SMALL_SCENE, candidate_pairs
+from engine.collision.broadphase import SMALL_SCENE, CandidateList, candidate_pairs
 from engine.collision.contacts import find_contacts
 from engine.collision.proximity import mesh_distance
 from engine.dynamics.picard import TunnellingWarning
@@ -71,6 +71,9 @@ def _tree_part() -> None:
                 )
     many = np.arange(3 * (SMALL_SCENE + 1), dtype=float).reshape(-1, 3)  # the grid path
     candidate_pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
+    kept = CandidateList()  # a scene's kept list: made, then filtered
+    for _ in range(2):
+        kept.pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
     scene = Scene(gravity=(0.0, 0.0, -9.81))  # broad phase, forces, motion update
     scene.add_plane(size=4.0, divisions=2)
     scene.add_body(box(), position=(0.0, 0.0, 0.505), angular_velocity=(0.0, 0.0, 1.0))

@@ -31,7 +31,7 @@ from engine.arguments import coordinate_limit
 from engine.errors import InvalidArgumentError
 from engine.kernels.collision import broadphase as kb
 
-__all__ = ["candidate_pairs", "overlapping_pairs"]
+__all__ = ["CandidateList", "candidate_pairs", "overlapping_pairs"]
 
 SLACK = 64 * float(np.finfo(np.float64).eps)
 """Relative widening of each bounding box, so that rounding in the cell indices never
@@ -50,6 +50,10 @@ SMALL_SCENE = 64
 hashing, sorting) costs tens of µs. ``benchmarks/broadphase.py``, the whole call with its
 checks: 11–42 µs by brute force against 48–59 µs through the grid for 2–64 bodies; the
 grid wins from about 100 (76 against 153 µs at 128)."""
+LIST_SKIN = 0.05
+"""Growth of a free body's bounding radius in a :class:`CandidateList`, relative to it."""
+_ROUNDING = 2.0**-20
+"""Relative share of the growth a body may not use (rounding of the two overlap tests)."""
 _NO_PAIRS = np.zeros((0, 2), np.int64)
 
 
@@ -111,6 +115,56 @@ def overlapping_pairs(c: np.ndarray, r: np.ndarray, f: np.ndarray) -> np.ndarray
     kb.bucket_pairs(starts, sorted_bodies, sorted_tags, c, r, f, offsets, pairs, found)
     out = np.empty((int(found.sum()), 2), np.int64)
     return out[: kb.sort_pairs(pairs, offsets, found, n, out)]
+
+
+class CandidateList:
+    """The broad phase of a scene kept between configurations (a Verlet list).
+
+    The list holds the pairs whose spheres overlap with each free body's radius grown by
+    ``skin``·r (fixed bodies: not grown), and the centres it was made at. While every
+    free body's centre stays within its growth of where it was listed (less a rounding
+    share of 2⁻²⁰ and 2⁻⁴⁰ of the scene's coordinates) and no fixed body has moved, a pair
+    not listed cannot overlap, so :meth:`pairs` filters the list by the exact test
+    instead of running the grid again; otherwise, or when the radii or the fixed mask
+    changed, the list is made again. Either way the answer is :func:`overlapping_pairs`'s
+    row for row: a function of the arguments alone, whatever was asked before.
+
+    skin : float — growth relative to each free body's radius (0: a new list every call)
+    """
+
+    def __init__(self, skin: float = LIST_SKIN) -> None:
+        skin = float(skin)
+        if not (np.isfinite(skin) and skin >= 0):
+            raise InvalidArgumentError(f"skin must be finite and >= 0, got {skin}")
+        self.skin = skin
+        self.made = 0  # lists made (each a full broad phase)
+        self.reused = 0  # calls answered by filtering the list
+        self._listed: tuple | None = None  # (centres, radii, fixed, allowed, pairs)
+
+    def pairs(self, c: np.ndarray, r: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """:func:`overlapping_pairs` ``(k, 2)`` int64 of checked arrays ``c (n, 3)``,
+        ``r (n,)`` float64, ``f (n,)`` bool (as that function takes them)."""
+        if len(r) <= SMALL_SCENE or self.skin == 0:
+            return overlapping_pairs(c, r, f)
+        listed = self._listed
+        if (
+            listed is not None
+            and listed[0].shape == c.shape
+            and np.array_equal(listed[1], r)
+            and np.array_equal(listed[2], f)
+            and kb.within_reach(c, listed[0], listed[3])
+        ):
+            self.reused += 1
+            out = np.empty_like(listed[4])
+            return out[: kb.filter_pairs(listed[4], c, r, out)].copy()
+        grow = np.where(f, 0.0, self.skin * r)
+        scale = float(np.abs(c).max()) + float(r.max())
+        allowed = np.maximum(grow * (1.0 - _ROUNDING) - 2.0**-40 * scale, 0.0)
+        candidates = overlapping_pairs(c, r + grow, f)
+        self._listed = (c.copy(), r.copy(), f.copy(), allowed, candidates)
+        self.made += 1
+        out = np.empty_like(candidates)
+        return out[: kb.filter_pairs(candidates, c, r, out)].copy()
 
 
 def _grid(c: np.ndarray, r: np.ndarray) -> tuple:

@@ -172,7 +172,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     mode, which records bounds, :func:`reference_distances`).
 
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
-    int64 (pairs evaluated per level). In the result, query ``start + t`` owns rows
+    int64 (pairs evaluated per level), every entry: they may come uninitialised. In the result, query ``start + t`` owns rows
     ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs``, likewise for contacts and its
     new list (empty without a skin, and for a query that used its cached list: that
     list stays valid as it is), whose reference pose is ``rotations[t], shifts[t]``.
@@ -222,6 +222,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
         f0, f1 = trees.face_offset[ta], trees.face_offset[ta] + trees.face_count[ta]
         contact = (trees.face_count[tb], params.keep_all, bank.face_normals[f0:f1], setup)
         stats[:] = 0
+        levels[t, :] = 0
         skin = lists.skin
         reach = skin * (ea + eb)
         e = lists.slot[q]

@@ -199,6 +199,37 @@ def all_pairs(centres, radii, fixed, out):
     return k
 
 
+@njit(**EXACT)
+def filter_pairs(candidates, centres, radii, out):
+    """The rows of ``candidates (m, 2)`` int64 (pairs ``i < j``, not both fixed) whose
+    spheres overlap now, by the test of :func:`bucket_pairs` in the same float64 order,
+    kept in order in ``out (≥ k, 2)`` int64; returns ``k``."""
+    k = 0
+    for p in range(candidates.shape[0]):
+        i, j = candidates[p, 0], candidates[p, 1]
+        dx = centres[i, 0] - centres[j, 0]
+        dy = centres[i, 1] - centres[j, 1]
+        dz = centres[i, 2] - centres[j, 2]
+        s = radii[i] + radii[j]
+        if dx * dx + dy * dy + dz * dz <= s * s:
+            out[k, 0], out[k, 1] = i, j
+            k += 1
+    return k
+
+
+@njit(**EXACT)
+def within_reach(centres, listed, allowed):
+    """Whether every centre ``centres (n, 3)`` float64 lies within ``allowed (n,)`` float64
+    (≥ 0; 0: not moved at all) of where it was listed, ``listed (n, 3)`` float64."""
+    for i in range(centres.shape[0]):
+        dx = centres[i, 0] - listed[i, 0]
+        dy = centres[i, 1] - listed[i, 1]
+        dz = centres[i, 2] - listed[i, 2]
+        if not dx * dx + dy * dy + dz * dz <= allowed[i] * allowed[i]:  # NaN: moved
+            return False
+    return True
+
+
 @njit(**EXACT_INLINE)
 def _candidate(centres, radii, fixed, i, j):
     """Bodies ``i`` and ``j`` are a candidate pair: not both fixed, and

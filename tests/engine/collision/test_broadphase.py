@@ -245,3 +245,67 @@ def test_huge_coordinates_within_the_limit():
 def test_validation(centres, radii, fixed, match):
     with pytest.raises(InvalidArgumentError, match=match):
         candidate_pairs(centres, radii, fixed)
+
+
+# ---------------------------------------------------------------- the kept list (Verlet)
+def walk(list_, centres, radii, fixed, moves) -> None:
+    """Each configuration of ``centres`` moved by ``moves`` in turn: the kept list's pairs
+    are the oracle's, row for row."""
+    c = centres.copy()
+    for move in moves:
+        c = c + move
+        got = list_.pairs(np.ascontiguousarray(c), radii, fixed)
+        assert got.dtype == np.int64 and got.shape[1] == 2
+        np.testing.assert_array_equal(got, oracle(c, radii, fixed))
+
+
+@PROPS
+@given(
+    n=st.integers(65, 160),
+    seed=st.integers(0, 2**32 - 1),
+    step=st.sampled_from([0.0, 1e-9, 1e-4, 1e-3, 0.01, 0.05, 0.3]),
+    skin=st.sampled_from([0.0, 0.01, 0.05, 0.5]),
+)
+def test_kept_list_matches_the_oracle_as_bodies_move(n, seed, step, skin):
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-3, 3, (n, 3))
+    radii = rng.uniform(0.2, 0.8, n)
+    radii[rng.integers(0, n)] = 0.0  # a point body
+    fixed = rng.random(n) < 0.2
+    moves = rng.normal(0, step, (12, n, 3)) * ~fixed[:, None]
+    moves[5, rng.integers(0, n)] += 1e-12  # a fixed body may be moved by its owner too
+    walk(bp.CandidateList(skin), centres, radii, fixed, moves)
+
+
+def test_kept_list_is_reused_while_bodies_stay_near_and_made_again_otherwise():
+    rng = np.random.default_rng(7)
+    side = 6
+    grid = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    centres, radii = grid * 1.0, np.full(len(grid), 0.5)  # face neighbours touch exactly
+    fixed = np.zeros(len(grid), bool)
+    kept = bp.CandidateList(0.05)
+    small = rng.normal(0, 1e-3, (6, len(grid), 3))
+    walk(kept, centres, radii, fixed, [np.zeros_like(centres), *small])
+    assert (kept.made, kept.reused) == (1, 6)
+    # one body moves beyond its growth (0.025): the list is made again
+    jump = np.zeros_like(centres)
+    jump[17, 0] = 0.03
+    walk(kept, centres + small.sum(0), radii, fixed, [jump])
+    assert kept.made == 2
+    # a change of radius or of the fixed mask makes it again, whatever the positions
+    kept.pairs(np.ascontiguousarray(centres), radii * 1.0001, fixed)
+    kept.pairs(np.ascontiguousarray(centres), radii * 1.0001, fixed | (grid[:, 0] == 0))
+    assert kept.made == 4
+    # a fixed body that moves at all makes it again
+    fixed = grid[:, 2] == 0
+    kept.pairs(np.ascontiguousarray(centres), radii, fixed)
+    nudge = np.zeros_like(centres)
+    nudge[0, 2] = -1e-9
+    walk(kept, centres, radii, fixed, [nudge])
+    assert kept.made == 6
+
+
+def test_kept_list_skin_must_be_finite_and_non_negative():
+    for skin in (-0.1, np.nan, np.inf):
+        with pytest.raises(InvalidArgumentError, match="skin"):
+            bp.CandidateList(skin)
