@@ -1,17 +1,26 @@
 """Thread scaling of the paper's sphere grid: steps at 1, 2, 4, 8, 16 threads (issue 15, point 4).
 
 Run: ``.venv/bin/python benchmarks/grid_threads.py [--threads 16 4 8 2 1]
-[--orientations vertices aligned] [--steps 3] [--shape 32 32 24]``. Prints a table per run
-and a summary, writes ``bench-results/grid_threads.json``.
+[--orientations vertices aligned] [--steps 3] [--shape 32 32 24] [--phases]``. Prints a
+table per run and a summary, writes ``bench-results/grid_threads.json``.
 
-One process: a small grid of each orientation is stepped first so that every kernel is
-compiled (or loaded from Numba's cache) before anything is timed; then, for each thread
+One process: a small grid (125 bodies, enough for the broad phase's cell grid) of each
+orientation is stepped first so that every kernel is compiled (or loaded from Numba's
+cache) before anything is timed; then, for each thread
 count in the order given and each orientation, a fresh scene
 (:func:`engine.scenarios.sphere_grid`, 1,224-triangle UV spheres, implicit-surrogate,
 dt = 1e-3) is stepped ``--steps`` times. Step 0 builds the pair lists; later steps reuse
 them. The summary gives the median of the later steps, the speed-up over the smallest
 thread count run and the parallel efficiency from 4 threads to each larger count,
 ``(t_4 · 4) / (t_n · n)``.
+
+``--phases`` also times, per step, the batch kernel's chunks as the worker threads run
+them (by wrapping ``engine.collision.batch``'s kernel entry point, in this process only):
+``parallel s`` is the summed wall time from an evaluation's first chunk start to its
+last chunk end, ``serial s`` the rest of the step (host work between the kernels),
+``busy`` the chunks' summed time over that wall time (threads kept busy; equal to the
+thread count when balanced), ``chunk s`` the summed chunk time (grows with the thread
+count when cores slow each other down: memory, frequency, allocation).
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ import argparse
 import json
 import statistics
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -48,11 +58,66 @@ def grid(shape: tuple[int, int, int], orientations: str, threads: int):
     return scene
 
 
-def run(shape, orientations: str, threads: int, steps: int) -> list[dict]:
+class ChunkClock:
+    """Start and end (perf_counter) of every batch-kernel chunk, from any thread."""
+
+    def __init__(self) -> None:
+        from engine.collision import batch
+
+        self.module, self.kernel = batch.kb, batch.kb.batch_kernel
+        self.spans: list[tuple[float, float]] = []
+        self._lock = threading.Lock()
+
+    def __enter__(self):
+        kernel = self.kernel
+
+        def timed(*args):
+            start = time.perf_counter()
+            result = kernel(*args)
+            end = time.perf_counter()
+            with self._lock:
+                self.spans.append((start, end))
+            return result
+
+        self.module.batch_kernel = timed
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.module.batch_kernel = self.kernel
+
+    def phases(self, wall: float) -> dict:
+        """Parallel and serial seconds of a step of ``wall`` seconds. An evaluation's
+        chunks run back to back on the workers; between evaluations none runs, so the
+        spans group into evaluations where a chunk starts after all before it ended."""
+        parallel, group_start, group_end = 0.0, None, None
+        for start, end in sorted(self.spans):
+            if group_end is None or start > group_end:
+                if group_end is not None:
+                    parallel += group_end - group_start
+                group_start, group_end = start, end
+            group_end = max(group_end, end)
+        if group_end is not None:
+            parallel += group_end - group_start
+        chunks = sum(e - s for s, e in self.spans)
+        return {
+            "parallel_s": parallel,
+            "serial_s": wall - parallel,
+            "chunk_s": chunks,
+            "busy": chunks / parallel if parallel > 0 else 0.0,
+            "chunks": len(self.spans),
+        }
+
+
+def run(shape, orientations: str, threads: int, steps: int, phases: bool = False) -> list[dict]:
     scene = grid(shape, orientations, threads)
     rows = []
     for index in range(steps):
-        row = scene.step(DT)
+        clock = ChunkClock() if phases else None
+        if clock is None:
+            row = scene.step(DT)
+        else:
+            with clock:
+                row = scene.step(DT)
         rows.append(
             {
                 "step": index,
@@ -61,6 +126,7 @@ def run(shape, orientations: str, threads: int, steps: int) -> list[dict]:
                 "comparisons": row.comparisons,
                 "contacts": row.contacts,
             }
+            | ({} if clock is None else clock.phases(row.seconds))
         )
     return rows
 
@@ -98,6 +164,7 @@ def main() -> None:
     parser.add_argument("--orientations", nargs="+", default=["vertices", "aligned"])
     parser.add_argument("--steps", type=int, default=3)
     parser.add_argument("--shape", type=int, nargs=3, default=(32, 32, 24), metavar="N")
+    parser.add_argument("--phases", action="store_true", help="time the kernel chunks too")
     args = parser.parse_args()
     if args.steps < 2:
         parser.error("--steps must be at least 2 (step 0 builds the pair lists)")
@@ -108,16 +175,23 @@ def main() -> None:
     )
     start = time.perf_counter()
     for orientations in args.orientations:
-        run((4, 4, 4), orientations, max(args.threads), 2)
+        run((5, 5, 5), orientations, max(args.threads), 2)  # > 64 bodies: the grid broad phase
     warmup = time.perf_counter() - start
     print(f"warm-up (compile or cache load): {warmup:.1f} s", flush=True)
     results = []
     for threads in args.threads:
         for orientations in args.orientations:
-            steps = run(tuple(args.shape), orientations, threads, args.steps)
+            steps = run(tuple(args.shape), orientations, threads, args.steps, args.phases)
             results.append({"orientations": orientations, "threads": threads, "steps": steps})
             seconds = " ".join(f"{s['seconds']:.3f}" for s in steps)
             print(f"{orientations:>9} {threads:3d} threads: {seconds} s", flush=True)
+            for s in steps if args.phases else ():
+                print(
+                    f"    step {s['step']}: parallel {s['parallel_s']:.3f} s, serial"
+                    f" {s['serial_s']:.3f} s, chunk {s['chunk_s']:.3f} s, busy {s['busy']:.1f}"
+                    f" of {threads} ({s['chunks']} chunks)",
+                    flush=True,
+                )
     table = summary(results)
     print(
         f"\n{'orientation':>11} {'threads':>7} {'first s':>8} {'steady s':>8} {'speed-up':>8}"

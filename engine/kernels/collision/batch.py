@@ -172,10 +172,11 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     mode, which records bounds, :func:`reference_distances`).
 
     Writes ``counts (stop − start, N_COUNTS)`` int64 and ``levels (stop − start, L)``
-    int64 (pairs evaluated per level), every entry: they may come uninitialised. In the result, query ``start + t`` owns rows
-    ``pair_offsets[t]:pair_offsets[t + 1]`` of ``pairs``, likewise for contacts and its
-    new list (empty without a skin, and for a query that used its cached list: that
-    list stays valid as it is), whose reference pose is ``rotations[t], shifts[t]``.
+    int64 (pairs evaluated per level), every entry: they may come uninitialised. In the
+    result, query ``start + t`` owns rows ``pair_offsets[t]:pair_offsets[t + 1]`` of
+    ``pairs``, likewise for contacts and its new list (empty without a skin, and for a
+    query that used its cached list: that list stays valid as it is), whose reference
+    pose is ``rotations[t], shifts[t]``.
     """
     k = stop - start
     pair_offsets = np.zeros(k + 1, np.int64)
