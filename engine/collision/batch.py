@@ -186,18 +186,21 @@ class PairCache:
         kept: np.ndarray,
         batch: kb.BatchResult,
         parts: list[kb.BatchResult],
+        threads: int = 1,
     ) -> None:
         """Hold exactly the pairs ``keys (k,)``: entry ``slots[q]`` where ``kept[q]`` (the
         query used its list, which stays valid), else the query's new list: ``batch``'s
         ``near_offsets``, and the ``rotations``, ``shifts``, ``near`` and
-        ``near_distances`` of the worker chunks ``parts`` (in order; joined here, once)."""
+        ``near_distances`` of the worker chunks ``parts`` (in order; joined here, once;
+        large rows are copied on ``threads`` worker threads)."""
         if kept.all() and np.array_equal(keys, self.keys):
             return  # the same pairs, every list kept: nothing to copy
+        pool = worker_pool(threads) if threads > 1 else None
         near_offsets = batch.near_offsets
         rotations = _joined([part.rotations for part in parts])
         shifts = _joined([part.shifts for part in parts])
-        near = _joined([part.near for part in parts])
-        near_distances = _joined([part.near_distances for part in parts])
+        near = _joined([part.near for part in parts], pool)
+        near_distances = _joined([part.near_distances for part in parts], pool)
         order = np.argsort(keys, kind="stable")
         identity = bool((order == np.arange(len(order))).all())
         if identity and not kept.any():  # every list new, in key order: the rows as made
@@ -211,15 +214,31 @@ class PairCache:
         offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         lists = np.empty((int(offsets[-1]), 2), np.int64)
         distances = np.empty(int(offsets[-1]))
-        join_lists(
+        sizes, old_start, new_start = (
             sizes.astype(np.int64),
             self.offsets[slots],
             near_offsets[:-1][order],
-            kept,
-            (self.near, self.distances),
-            (near, near_distances),
-            (lists, distances),
         )
+
+        def fill(q0: int, q1: int) -> None:  # entries q0 … q1 − 1, into their own rows
+            r0, r1 = offsets[q0], offsets[q1]
+            join_lists(
+                sizes[q0:q1],
+                old_start[q0:q1],
+                new_start[q0:q1],
+                kept[q0:q1],
+                (self.near, self.distances),
+                (near, near_distances),
+                (lists[r0:r1], distances[r0:r1]),
+            )
+
+        if pool is None or distances.nbytes < _PARALLEL_JOIN:
+            fill(0, len(sizes))
+        else:  # first-touch page faults of the new rows, on the workers (see _joined)
+            bounds = np.searchsorted(offsets, np.linspace(0, offsets[-1], 2 * threads + 1))
+            bounds[0], bounds[-1] = 0, len(sizes)
+            bounds = np.unique(bounds).tolist()
+            list(pool.map(fill, bounds[:-1], bounds[1:]))
         self.keys = np.ascontiguousarray(keys[order], np.int64)
         self.rotations = rotations[order]
         self.shifts = shifts[order]
@@ -390,12 +409,12 @@ class TreeBank:
                 levels[start:stop],
             )
 
-        threads = threads or _CPUS
+        threads = int(threads or _CPUS)
         if threads == 1 or k < 2 * _PAIRS_PER_TASK:
             parts = [chunk(0, k)]
         else:
             bounds = np.linspace(0, k, min(k // _PAIRS_PER_TASK, 4 * threads) + 1).astype(int)
-            pool = worker_pool(int(threads))
+            pool = worker_pool(threads)
             futures = [
                 pool.submit(chunk, int(s), int(e))
                 for s, e in zip(bounds[:-1], bounds[1:], strict=True)
@@ -403,7 +422,7 @@ class TreeBank:
             parts = [f.result() for f in futures]
         joined = _join(parts)
         if cache is not None:
-            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, joined, parts)
+            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, joined, parts, threads)
         return ContactBatch(
             joined.pair_offsets,
             tuple(part.pairs for part in parts) if keep_pairs else (),
@@ -493,9 +512,29 @@ def _join(parts: list[kb.BatchResult]) -> kb.BatchResult:
     )
 
 
-def _joined(chunks: list[np.ndarray]) -> np.ndarray:
-    """The chunks' rows as one array (one chunk: itself)."""
-    return chunks[0] if len(chunks) == 1 else np.concatenate(chunks)
+_PARALLEL_JOIN = 1 << 24
+"""Bytes from which :func:`_joined` copies the chunks on the worker threads. Most of a
+large join's time is first-touch page faults of the new array (the "aligned" grid's first
+lists, 770 MB: 1.7 s of a 8.1 s step on the 2-vCPU VM of BENCHMARKS.md, where a copy into
+memory already touched takes 0.04 s); they proceed in parallel."""
+
+
+def _joined(chunks: list[np.ndarray], pool=None) -> np.ndarray:
+    """The chunks' rows as one array (one chunk: itself), copied on the threads of
+    ``pool`` (a ThreadPoolExecutor; numpy copies without the GIL) when it is given and
+    the rows are at least :data:`_PARALLEL_JOIN` bytes."""
+    if len(chunks) == 1:
+        return chunks[0]
+    if pool is None or sum(c.nbytes for c in chunks) < _PARALLEL_JOIN:
+        return np.concatenate(chunks)
+    rows = np.cumsum([0] + [len(c) for c in chunks])
+    out = np.empty((int(rows[-1]), *chunks[0].shape[1:]), chunks[0].dtype)
+
+    def copy(i: int) -> None:
+        out[rows[i] : rows[i + 1]] = chunks[i]
+
+    list(pool.map(copy, range(len(chunks))))
+    return out
 
 
 def _offsets(chunks: list[np.ndarray]) -> np.ndarray:
