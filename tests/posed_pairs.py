@@ -22,3 +22,18 @@ def random_queries(trees, count, seed):
         )
         queries.append((a, pa, b, pb))
     return queries
+
+
+def query_arrays(trees, queries) -> tuple:
+    """``(tree_a, position_a, orientation_a, tree_b, position_b, orientation_b)`` arrays of
+    ``(tree_a, pose_a, tree_b, pose_b)`` queries (as :meth:`engine.TreeBank.find_contacts`
+    takes them), trees numbered by their place in ``trees``."""
+    index = {id(t): i for i, t in enumerate(trees)}
+    return (
+        np.array([index[id(q[0])] for q in queries]),
+        np.array([q[1].position for q in queries]),
+        np.array([q[1].orientation for q in queries]),
+        np.array([index[id(q[2])] for q in queries]),
+        np.array([q[3].position for q in queries]),
+        np.array([q[3].orientation for q in queries]),
+    )

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from posed_pairs import random_queries
+from posed_pairs import query_arrays, random_queries
 
 from engine import (
     InvalidArgumentError,
@@ -170,13 +170,7 @@ def test_pair_cache_gives_the_traversal_bits_while_bodies_move(trees, precision,
     bank = TreeBank(trees, precision)
     rng = np.random.default_rng(7)
     queries = random_queries(trees, 40, seed=3)
-    index = {id(t): i for i, t in enumerate(trees)}
-    ta = np.array([index[id(q[0])] for q in queries])
-    tb = np.array([index[id(q[2])] for q in queries])
-    pa = np.array([q[1].position for q in queries])
-    qa = np.array([q[1].orientation for q in queries])
-    pb = np.array([q[3].position for q in queries])
-    qb = np.array([q[3].orientation for q in queries])
+    ta, pa, qa, tb, pb, qb = query_arrays(trees, queries)
     cache = PairCache(skin=0.5)
     keys = np.arange(len(queries)) * 3 + 1
     if keys_order == "shuffled":
@@ -213,13 +207,7 @@ def test_pair_cache_joins_worker_chunks_in_parallel_as_one_thread_would(trees, m
     bank = TreeBank(trees, "float64")
     rng = np.random.default_rng(11)
     queries = random_queries(trees, 48, seed=5)
-    index = {id(t): i for i, t in enumerate(trees)}
-    ta = np.array([index[id(q[0])] for q in queries])
-    tb = np.array([index[id(q[2])] for q in queries])
-    pa = np.array([q[1].position for q in queries])
-    qa = np.array([q[1].orientation for q in queries])
-    pb = np.array([q[3].position for q in queries])
-    qb = np.array([q[3].orientation for q in queries])
+    ta, pa, qa, tb, pb, qb = query_arrays(trees, queries)
     split, single = PairCache(skin=0.5), PairCache(skin=0.5)
     keys = rng.permutation(np.arange(len(queries)) * 5 + 2)
     renewed = 0

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from posed_pairs import random_queries
+from posed_pairs import query_arrays, random_queries
 
 from engine import PairCache, TreeBank, build_tree, shapes, triangle_distances
 from engine.kernels.collision.contact_merge import key_order
@@ -23,18 +23,6 @@ def trees():
         build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
         build_tree(shapes.uv_sphere(16, 8, radius=0.8), epsilon=0.02),  # pole fans
     ]
-
-
-def _arrays(trees, queries):
-    index = {id(t): i for i, t in enumerate(trees)}
-    return (
-        np.array([index[id(q[0])] for q in queries]),
-        np.array([q[1].position for q in queries]),
-        np.array([q[1].orientation for q in queries]),
-        np.array([index[id(q[2])] for q in queries]),
-        np.array([q[3].position for q in queries]),
-        np.array([q[3].orientation for q in queries]),
-    )
 
 
 def _all_leaf_pairs(tree_a, pose_a, tree_b, pose_b):
@@ -59,7 +47,7 @@ def test_a_new_list_holds_every_leaf_pair_within_reach_and_skin(trees, precision
     queries = random_queries(trees, 40, seed=5)
     cache = PairCache(skin=SKIN)
     keys = np.arange(len(queries), dtype=np.int64)
-    got = bank.find_contacts(*_arrays(trees, queries), cache=cache, keys=keys, threads=1)
+    got = bank.find_contacts(*query_arrays(trees, queries), cache=cache, keys=keys, threads=1)
     assert (got.counts[:, 6] == 0).all()  # every list is new
     tolerance = 1e-9 if precision == "float64" else 1e-4
     listed_total = 0
@@ -87,7 +75,7 @@ def test_a_new_list_holds_every_leaf_pair_within_reach_and_skin(trees, precision
 def test_contacts_of_a_call_that_makes_the_lists_are_the_traversals(trees, precision):
     bank = TreeBank(trees, precision)
     queries = random_queries(trees, 120, seed=9)
-    args = _arrays(trees, queries)
+    args = query_arrays(trees, queries)
     keys = np.arange(len(queries), dtype=np.int64) * 7
     got = bank.find_contacts(*args, cache=PairCache(skin=SKIN), keys=keys, threads=2)
     want = bank.find_contacts(*args, threads=2)
@@ -103,7 +91,7 @@ def test_a_new_list_is_sorted_by_faces(trees):
     queries = random_queries(trees, 40, seed=11)
     cache = PairCache(skin=SKIN)
     keys = np.arange(len(queries), dtype=np.int64)
-    bank.find_contacts(*_arrays(trees, queries), cache=cache, keys=keys, threads=1)
+    bank.find_contacts(*query_arrays(trees, queries), cache=cache, keys=keys, threads=1)
     sorted_lists = 0
     for e, (tree_a, _, tree_b, _) in enumerate(queries):
         near = cache.near[cache.offsets[e] : cache.offsets[e + 1]]
