@@ -6,10 +6,14 @@ them on these threads; a pool per count keeps ``threads=k`` a bound on concurren
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from threading import Lock
 
-__all__ = ["worker_pool"]
+__all__ = ["in_parts", "worker_pool"]
+
+CPUS = os.cpu_count() or 1  # looked up once: os.cpu_count() costs µs per call
 
 _pools: dict[int, ThreadPoolExecutor] = {}
 _pools_lock = Lock()
@@ -23,3 +27,20 @@ def worker_pool(threads: int) -> ThreadPoolExecutor:
                 max_workers=threads, thread_name_prefix=f"mrdem-kernel-{threads}"
             )
         return _pools[threads]
+
+
+def in_parts(
+    threads: int | None, rows: int, task: Callable[[int, int], object], least: int = 4096
+) -> None:
+    """Run ``task(start, stop)`` over ``range(rows)`` in contiguous parts, one per worker
+    thread (``threads``; None: all cores), when there are ``least`` rows per thread or
+    more; else one call on this thread. ``task`` must write only its own rows (a kernel
+    that releases the GIL); an exception in a part is raised here."""
+    threads = min(int(threads or CPUS), rows // max(least, 1))
+    if threads <= 1:
+        task(0, rows)
+        return
+    bounds = [rows * i // threads for i in range(threads + 1)]
+    pool = worker_pool(threads)
+    for future in [pool.submit(task, a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]:
+        future.result()

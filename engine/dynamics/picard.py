@@ -62,6 +62,7 @@ from engine.dynamics.bodies import body_terms, smallest_inertia
 from engine.dynamics.evaluation import WarmStart, Wrench, cross, evaluate, evaluation_key, reused
 from engine.kernels.dynamics import contact_forces as kf
 from engine.kernels.dynamics import motion as kd
+from engine.workers import in_parts
 
 __all__ = ["StepStats", "TunnellingWarning", "step", "travel"]
 
@@ -437,8 +438,26 @@ def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _advance(scene, start, force, torque, dt: float, out) -> None:
+    """:func:`~engine.kernels.dynamics.motion.advance` of every body, in parts on the
+    scene's worker threads when there are many (each body's update is its own: the same
+    bits in any split; on the paper's 24,576-sphere grid one pass took 3.5 ms, three a
+    step)."""
     inverse_mass = body_terms(scene).inverse_mass
-    kd.advance(start, force, torque, inverse_mass, scene.inertia, scene.inverse_inertia, dt, out)
+    inertia, inverse_inertia = scene.inertia, scene.inverse_inertia
+
+    def part(a: int, b: int) -> None:
+        kd.advance(
+            tuple(x[a:b] for x in start),
+            force[a:b],
+            torque[a:b],
+            inverse_mass[a:b],
+            inertia[a:b],
+            inverse_inertia[a:b],
+            dt,
+            tuple(x[a:b] for x in out),
+        )
+
+    in_parts(scene.threads, len(inverse_mass), part)
 
 
 def _summary(scene, contacts, counters, energy, converged: bool, iterations: int) -> dict:
