@@ -1,15 +1,16 @@
 """One body pair of the paper's sphere grid, searched many times: the cost of a traversal that
 makes the pair cache's list, of a search served by that list, and of a plain traversal.
 
-Run: ``.venv/bin/python benchmarks/grid_pairs.py [--copies 2000] [--threads 1]``. Prints a
-table and writes ``bench-results/grid_pairs.json``.
+Run: ``.venv/bin/python benchmarks/grid_pairs.py [--copies 2000] [--threads 1] [--skin S]``.
+Prints a table and writes ``bench-results/grid_pairs.json``.
 
 The pairs are neighbours of :func:`engine.scenarios.sphere_grid` (1,224-triangle UV spheres,
 centres 1.0195 apart): along z and along x, for the ``"aligned"`` and the ``"vertices"``
 orientations (the "aligned" z pair touches pole to pole: 1,296 touching leaf pairs). Each is
 queried as ``--copies`` identical body pairs in one :meth:`engine.TreeBank.run` call (hybrid,
-the scene's precision): with a fresh :class:`engine.PairCache` (every list made), again with
-that cache (every list serving), and without a cache. Times are per body pair, best of
+the scene's precision): with a fresh :class:`engine.PairCache` of the default skin (every
+list made; ``--skin`` for another), again with that cache (every list serving), and without
+a cache. Times are per body pair, best of
 ``REPEAT`` calls (the traversal that makes lists: one call).
 """
 
@@ -27,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from engine import PairCache, scenarios  # noqa: E402
+from engine.collision.batch import DEFAULT_SKIN  # noqa: E402
 
 OUT = ROOT / "bench-results"
 REPEAT = 5
@@ -56,6 +58,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--copies", type=int, default=2000)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--skin", type=float, default=DEFAULT_SKIN)
     args = parser.parse_args()
     k, threads = args.copies, args.threads
     rows = []
@@ -67,8 +70,8 @@ def main() -> None:
             bank, queries = scene.bank, _queries(scene, k)
             keys = np.arange(k, dtype=np.int64)
             few = tuple(column[:2] for column in queries)
-            bank.run(few, "hybrid", threads, PairCache(0.5), keys[:2])  # compiled or loaded
-            cache = PairCache(0.5)
+            bank.run(few, "hybrid", threads, PairCache(args.skin), keys[:2])  # compiled or loaded
+            cache = PairCache(args.skin)
             start = time.perf_counter()
             made = bank.run(queries, "hybrid", threads, cache, keys)
             making = time.perf_counter() - start
@@ -92,7 +95,7 @@ def main() -> None:
             )
     OUT.mkdir(exist_ok=True)
     target = OUT / "grid_pairs.json"
-    setup = {"copies": k, "threads": threads, "repeat": REPEAT}
+    setup = {"copies": k, "threads": threads, "repeat": REPEAT, "skin": args.skin}
     target.write_text(json.dumps({"setup": setup, "pairs": rows}, indent=2))
     print(f"wrote {target}")
 

@@ -3,8 +3,9 @@ resting and of a rolling contact, warm against restarting every step at the root
 
 * multiscale: fronts kept from the last step (``MultiscaleSearch.warm``) against fronts
   rebuilt from the two roots each step (the paper's Algorithm 6 as published);
-* implicit-surrogate: the pair cache's lists (``Scene(skin=0.5)``) against a traversal from
-  the roots in every Picard iteration (``skin=0``).
+* implicit-surrogate: the pair cache's lists (``Scene(skin=0.5)``, the default until issue
+  15's seventh step) against a traversal from the roots in every Picard iteration
+  (``skin=0``).
 
 Scenes (1,280-triangle sphere, ε = 1 % of the diameter, dt = 1e-3): **resting** — the sphere
 settled on a flat plane (300 steps to settle first); **rolling** — the sphere rolling down

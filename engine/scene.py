@@ -41,7 +41,7 @@ from engine.arguments import (
     check_vector,
     coordinate_limit,
 )
-from engine.collision.batch import PairCache, TreeBank
+from engine.collision.batch import DEFAULT_SKIN, PairCache, TreeBank
 from engine.collision.broadphase import CandidateList
 from engine.collision.configuration import (
     Contacts,
@@ -116,7 +116,8 @@ class Scene:
     skin : float — the multiresolution search keeps, per body pair, the leaf pairs within
         ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
         by less than that skin (:class:`~engine.collision.batch.PairCache`: exactly the same
-        contacts); 0 searches every configuration from the roots
+        contacts); 0 searches every configuration from the roots; default
+        :data:`~engine.collision.batch.DEFAULT_SKIN` (0.25)
 
     Attributes besides the state arrays
     -----------------------------------
@@ -139,7 +140,7 @@ class Scene:
         max_picard_iterations: int = 50,
         max_halvings: int = 0,
         threads: int | None = None,
-        skin: float = 0.5,
+        skin: float = DEFAULT_SKIN,
         substeps: bool = False,
         sleep=False,
     ) -> None:
