@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from engine import PairCache, scenarios  # noqa: E402
-from engine.collision.batch import DEFAULT_SKIN  # noqa: E402
+from engine.collision.pair_cache import DEFAULT_SKIN  # noqa: E402
 
 OUT = ROOT / "bench-results"
 REPEAT = 5

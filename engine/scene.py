@@ -41,7 +41,7 @@ from engine.arguments import (
     check_vector,
     coordinate_limit,
 )
-from engine.collision.batch import DEFAULT_SKIN, PairCache, TreeBank
+from engine.collision.batch import TreeBank
 from engine.collision.broadphase import CandidateList
 from engine.collision.configuration import (
     Contacts,
@@ -49,6 +49,7 @@ from engine.collision.configuration import (
     flat_contacts,
 )
 from engine.collision.multiscale import MultiscaleSearch
+from engine.collision.pair_cache import DEFAULT_SKIN, PairCache
 from engine.dynamics import picard
 from engine.dynamics.bodies import BodyCache, body_terms
 from engine.dynamics.evaluation import WarmStart
@@ -115,9 +116,9 @@ class Scene:
         :func:`engine.dynamics.picard.travel`)
     skin : float — the multiresolution search keeps, per body pair, the leaf pairs within
         ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
-        by less than that skin (:class:`~engine.collision.batch.PairCache`: exactly the same
+        by less than that skin (:class:`~engine.collision.pair_cache.PairCache`: exactly the same
         contacts); 0 searches every configuration from the roots; default
-        :data:`~engine.collision.batch.DEFAULT_SKIN` (0.25)
+        :data:`~engine.collision.pair_cache.DEFAULT_SKIN` (0.25)
 
     Attributes besides the state arrays
     -----------------------------------

@@ -21,12 +21,12 @@ import numpy as np
 
 from engine.arguments import check_kernel, check_precision, check_quaternions, check_rows
 from engine.collision.contacts import ContactSet, ContactStats, find_contacts
+from engine.collision.pair_cache import NO_LISTS, PairCache, joined_offsets
 from engine.collision.query import TINY, ULP, query_parameters
 from engine.errors import InvalidArgumentError
 from engine.geometry.distance import DEFAULT_PRECISION
 from engine.geometry.pose import Pose
 from engine.kernels.collision import batch as kb
-from engine.kernels.collision.pair_lists import join_lists
 from engine.trees.tree import SurrogateTree
 from engine.workers import worker_pool
 
@@ -107,162 +107,6 @@ class ContactBatch:
     def comparisons(self) -> int:
         """Triangle comparisons over all pairs."""
         return int(self.counts[:, kb.COUNT_COMPARISONS].sum())
-
-
-DEFAULT_SKIN = 0.25
-"""Default :class:`PairCache` skin, relative to ε_a + ε_b. A larger skin keeps lists
-valid for more motion but makes each list longer and its traversal dearer (ε grown more):
-on the paper's grid 0.25 against 0.5 took a traversal that makes the list of a pole pair
-from 301 to 251 µs and the "aligned" grid's first step from 7.3–7.6 to 6.4–6.6 s (2
-threads), steady steps unchanged; a rolling sphere and a falling pile of 64 spheres
-(implicit-surrogate) stepped in the same time (0.23/0.24 and 3.73/3.71 ms)."""
-
-
-class PairCache:
-    """Leaf pairs near contact kept per body pair between searches (a Verlet list).
-
-    For each cached pair: the leaf pairs within ε_a + ε_b + s at a reference pose of B
-    relative to A, s = ``skin``·(ε_a + ε_b), with their exact distances there. While no
-    point of B has moved by s or more relative to A since then, every leaf pair in
-    contact is on the list (a pair at distance ≤ ε_a + ε_b now was within ε_a + ε_b + s
-    then), so evaluating the list alone gives exactly the traversal's contacts — bit for
-    bit, with the same kernels on the same moved triangles; of the list only the pairs
-    whose reference distance, less how far B has moved since, is still within reach
-    (with a rounding allowance) are evaluated, the others cannot touch
-    (:func:`~engine.kernels.collision.batch.listed_contacts`). Past that, the pair is
-    traversed again (with ε grown by s/2 per body) and its list renewed. Entries are
-    keyed by an integer per body pair chosen by the caller; a search keeps exactly the
-    entries of the pairs it was asked.
-
-    Attributes
-    ----------
-    skin : float — s relative to the pair's ε_a + ε_b (0: no caching)
-    keys : (m,) int64 sorted; rotations (m, 3, 3), shifts (m, 3) float64 — reference poses
-    offsets : (m + 1,) int64; near : (L, 2) int64 — the lists (node pairs), CSR
-    distances : (L,) float64 — each listed pair's exact distance at the reference pose
-    """
-
-    def __init__(self, skin: float = DEFAULT_SKIN) -> None:
-        skin = float(skin)
-        if not (np.isfinite(skin) and skin >= 0):
-            raise InvalidArgumentError(f"skin must be finite and >= 0, got {skin}")
-        self.skin = skin
-        self.clear()
-
-    def clear(self) -> None:
-        """Forget every list."""
-        self.keys = np.zeros(0, np.int64)
-        self.rotations = np.zeros((0, 3, 3))
-        self.shifts = np.zeros((0, 3))
-        self.offsets = np.zeros(1, np.int64)
-        self.near = np.zeros((0, 2), np.int64)
-        self.distances = np.zeros(0)
-
-    def __len__(self) -> int:
-        return len(self.keys)
-
-    @property
-    def nbytes(self) -> int:
-        return sum(
-            a.nbytes
-            for a in (
-                self.keys,
-                self.rotations,
-                self.shifts,
-                self.offsets,
-                self.near,
-                self.distances,
-            )
-        )
-
-    def _slots(self, keys: np.ndarray) -> np.ndarray:
-        """(k,) int64 entry of each key, −1 where none."""
-        at = np.searchsorted(self.keys, keys)
-        hit = at < len(self.keys)
-        hit[hit] = self.keys[at[hit]] == keys[hit]
-        return np.where(hit, at, -1).astype(np.int64)
-
-    def _lists(self, slots: np.ndarray) -> kb.PairLists:
-        """The lists as the kernel reads them, ``slots (k,)`` int64 naming each query's."""
-        return kb.PairLists(
-            self.skin, slots, self.rotations, self.shifts, self.offsets, self.near, self.distances
-        )
-
-    def _replace(
-        self,
-        keys: np.ndarray,
-        slots: np.ndarray,
-        kept: np.ndarray,
-        batch: kb.BatchResult,
-        parts: list[kb.BatchResult],
-        threads: int = 1,
-    ) -> None:
-        """Hold exactly the pairs ``keys (k,)``: entry ``slots[q]`` where ``kept[q]`` (the
-        query used its list, which stays valid), else the query's new list: ``batch``'s
-        ``near_offsets``, and the ``rotations``, ``shifts``, ``near`` and
-        ``near_distances`` of the worker chunks ``parts`` (in order; joined here, once;
-        large rows are copied on ``threads`` worker threads)."""
-        if kept.all() and np.array_equal(keys, self.keys):
-            return  # the same pairs, every list kept: nothing to copy
-        pool = worker_pool(threads) if threads > 1 else None
-        near_offsets = batch.near_offsets
-        rotations = _joined([part.rotations for part in parts])
-        shifts = _joined([part.shifts for part in parts])
-        near = _joined([part.near for part in parts], pool)
-        near_distances = _joined([part.near_distances for part in parts], pool)
-        order = np.argsort(keys, kind="stable")
-        identity = bool((order == np.arange(len(order))).all())
-        if identity and not kept.any():  # every list new, in key order: the rows as made
-            self.keys = np.ascontiguousarray(keys, np.int64)
-            self.rotations, self.shifts = rotations, shifts
-            self.offsets, self.near, self.distances = near_offsets, near, near_distances
-            return
-        slots, kept = slots[order], kept[order]
-        fresh = np.diff(near_offsets)[order]
-        sizes = np.where(kept, self.offsets[slots + 1] - self.offsets[slots], fresh)
-        offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-        lists = np.empty((int(offsets[-1]), 2), np.int64)
-        distances = np.empty(int(offsets[-1]))
-        sizes, old_start, new_start = (
-            sizes.astype(np.int64),
-            self.offsets[slots],
-            near_offsets[:-1][order],
-        )
-
-        def fill(q0: int, q1: int) -> None:  # entries q0 … q1 − 1, into their own rows
-            r0, r1 = offsets[q0], offsets[q1]
-            join_lists(
-                sizes[q0:q1],
-                old_start[q0:q1],
-                new_start[q0:q1],
-                kept[q0:q1],
-                (self.near, self.distances),
-                (near, near_distances),
-                (lists[r0:r1], distances[r0:r1]),
-            )
-
-        if pool is None or distances.nbytes < _PARALLEL_JOIN:
-            fill(0, len(sizes))
-        else:  # first-touch page faults of the new rows, on the workers (see _joined)
-            bounds = np.searchsorted(offsets, np.linspace(0, offsets[-1], 2 * threads + 1))
-            bounds[0], bounds[-1] = 0, len(sizes)
-            bounds = np.unique(bounds).tolist()
-            list(pool.map(fill, bounds[:-1], bounds[1:]))
-        self.keys = np.ascontiguousarray(keys[order], np.int64)
-        self.rotations = rotations[order]
-        self.shifts = shifts[order]
-        self.offsets, self.near, self.distances = offsets, lists, distances
-
-
-_NO_LISTS = kb.PairLists(
-    skin=0.0,
-    slot=np.zeros(0, np.int64),
-    rotations=np.zeros((0, 3, 3)),
-    shifts=np.zeros((0, 3)),
-    offsets=np.zeros(1, np.int64),
-    near=np.zeros((0, 2), np.int64),
-    distances=np.zeros(0),
-)
 
 
 class TreeBank:
@@ -389,8 +233,19 @@ class TreeBank:
         (``pairs`` then raises): a scene step reads only their count."""
         queries = kb.PairQueries(*queries)
         k = len(queries.tree_a)
-        slots = None if cache is None else cache._slots(keys)
-        lists = _NO_LISTS if cache is None else cache._lists(slots)
+        threads = int(threads or _CPUS)
+        if threads == 1 or k < 2 * _PAIRS_PER_TASK:
+            bounds = np.array([0, k], np.int64)
+        else:
+            chunks = min(k // _PAIRS_PER_TASK, 4 * threads)
+            bounds = np.linspace(0, k, chunks + 1).astype(np.int64)
+        # the pairs and chunks of the cache's last search: chunk c reads and renews part c
+        by_part = cache is not None and cache._aligned(keys, bounds)
+        if by_part:
+            slots = np.arange(k, dtype=np.int64) - np.repeat(bounds[:-1], np.diff(bounds))
+        else:
+            slots = None if cache is None else cache._slots(keys)
+            lists = NO_LISTS if cache is None else cache._lists(slots, threads)
         surrogate, leaf = query_parameters(kernel, self.dtype)
         params = kb.QueryParams(
             surrogate=surrogate,
@@ -405,33 +260,32 @@ class TreeBank:
         counts = np.empty((k, kb.N_COUNTS), np.int64)
         levels = np.empty((k, MAX_LEVELS), np.int64)
 
-        def chunk(start: int, stop: int):
-            return kb.batch_kernel(
+        def chunk(c: int):
+            start, stop = int(bounds[c]), int(bounds[c + 1])
+            result = kb.batch_kernel(
                 self.nodes,
                 self.table,
                 queries,
                 params,
-                lists,
+                cache._part(c, slots) if by_part else lists,
                 start,
                 stop,
                 counts[start:stop],
                 levels[start:stop],
             )
+            if by_part:
+                cache._renew(c, counts[start:stop, kb.COUNT_LISTED] == 1, result)
+            return result
 
-        threads = int(threads or _CPUS)
-        if threads == 1 or k < 2 * _PAIRS_PER_TASK:
-            parts = [chunk(0, k)]
+        if len(bounds) == 2:
+            parts = [chunk(0)]
         else:
-            bounds = np.linspace(0, k, min(k // _PAIRS_PER_TASK, 4 * threads) + 1).astype(int)
             pool = worker_pool(threads)
-            futures = [
-                pool.submit(chunk, int(s), int(e))
-                for s, e in zip(bounds[:-1], bounds[1:], strict=True)
-            ]
-            parts = [f.result() for f in futures]
+            parts = [f.result() for f in [pool.submit(chunk, c) for c in range(len(bounds) - 1)]]
         joined = _join(parts)
-        if cache is not None:
-            cache._replace(keys, slots, counts[:, kb.COUNT_LISTED] == 1, joined, parts, threads)
+        if cache is not None and not by_part:
+            kept = counts[:, kb.COUNT_LISTED] == 1
+            cache._replace(keys, slots, kept, joined.near_offsets, parts, bounds, threads)
         return ContactBatch(
             joined.pair_offsets,
             tuple(part.pairs for part in parts) if keep_pairs else (),
@@ -497,9 +351,9 @@ def find_contacts_batch(
 def _join(parts: list[kb.BatchResult]) -> kb.BatchResult:
     """The results of consecutive chunks of queries as one (one chunk: as it is), except
     ``pairs``, ``near``, ``near_distances``, ``rotations`` and ``shifts``, left empty:
-    :class:`ContactBatch` keeps the chunks' own pairs, and :meth:`PairCache._replace`
-    joins the lists and their poses only where it needs them (the paper's "aligned" grid
-    makes 32 M rows of lists; in a steady step every list is kept)."""
+    :class:`ContactBatch` keeps the chunks' own pairs, and the :class:`PairCache` keeps the
+    chunks' lists and poses as parts (the paper's "aligned" grid makes 32 M rows of
+    lists; in a steady step every list is kept)."""
     if len(parts) == 1:
         return parts[0]
     left = {
@@ -511,7 +365,7 @@ def _join(parts: list[kb.BatchResult]) -> kb.BatchResult:
     }
     return kb.BatchResult(
         *(
-            _offsets([getattr(p, name) for p in parts])
+            joined_offsets([getattr(p, name) for p in parts])
             if name.endswith("_offsets")
             else left[name]
             if name in left
@@ -519,39 +373,6 @@ def _join(parts: list[kb.BatchResult]) -> kb.BatchResult:
             for name in kb.BatchResult._fields
         )
     )
-
-
-_PARALLEL_JOIN = 1 << 24
-"""Bytes from which :func:`_joined` copies the chunks on the worker threads. Most of a
-large join's time is first-touch page faults of the new array (the "aligned" grid's first
-lists, 770 MB: 1.7 s of a 8.1 s step on the 2-vCPU VM of BENCHMARKS.md, where a copy into
-memory already touched takes 0.04 s); they proceed in parallel."""
-
-
-def _joined(chunks: list[np.ndarray], pool=None) -> np.ndarray:
-    """The chunks' rows as one array (one chunk: itself), copied on the threads of
-    ``pool`` (a ThreadPoolExecutor; numpy copies without the GIL) when it is given and
-    the rows are at least :data:`_PARALLEL_JOIN` bytes."""
-    if len(chunks) == 1:
-        return chunks[0]
-    if pool is None or sum(c.nbytes for c in chunks) < _PARALLEL_JOIN:
-        return np.concatenate(chunks)
-    rows = np.cumsum([0] + [len(c) for c in chunks])
-    out = np.empty((int(rows[-1]), *chunks[0].shape[1:]), chunks[0].dtype)
-
-    def copy(i: int) -> None:
-        out[rows[i] : rows[i + 1]] = chunks[i]
-
-    list(pool.map(copy, range(len(chunks))))
-    return out
-
-
-def _offsets(chunks: list[np.ndarray]) -> np.ndarray:
-    """(k + 1,) int64 CSR offsets of consecutive chunks' offsets (each from 0)."""
-    out = [np.zeros(1, np.int64)]
-    for offsets in chunks:
-        out.append(offsets[1:] + out[-1][-1])
-    return np.concatenate(out)
 
 
 def _count(values, name: str) -> int:

@@ -15,8 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.collision.batch import PairCache, TreeBank
+from engine.collision.batch import TreeBank
 from engine.collision.contacts import find_contacts
+from engine.collision.pair_cache import PairCache
 from engine.errors import InvalidArgumentError
 from engine.geometry.pose import Pose
 from engine.kernels.collision import batch as kb

@@ -195,38 +195,6 @@ def test_pair_cache_gives_the_traversal_bits_while_bodies_move(trees, precision,
     assert len(cache) == len(queries) and np.array_equal(cache.keys, np.sort(keys))
 
 
-def test_pair_cache_joins_worker_chunks_in_parallel_as_one_thread_would(trees, monkeypatch):
-    """Many chunks and every join on the worker threads (the thresholds lowered): after each
-    step of a random walk the cache holds the very lists, distances and poses that one
-    thread (one chunk, no join) leaves, and the contacts are the traversal's."""
-    import engine.collision.batch as batch
-    from engine import PairCache
-
-    monkeypatch.setattr(batch, "_PAIRS_PER_TASK", 4)
-    monkeypatch.setattr(batch, "_PARALLEL_JOIN", 0)
-    bank = TreeBank(trees, "float64")
-    rng = np.random.default_rng(11)
-    queries = random_queries(trees, 48, seed=5)
-    ta, pa, qa, tb, pb, qb = query_arrays(trees, queries)
-    split, single = PairCache(skin=0.5), PairCache(skin=0.5)
-    keys = rng.permutation(np.arange(len(queries)) * 5 + 2)
-    renewed = 0
-    for _ in range(30):
-        args = (ta, pa, qa, tb, pb, qb)
-        got = bank.find_contacts(*args, cache=split, keys=keys, threads=2)
-        one = bank.find_contacts(*args, cache=single, keys=keys, threads=1)
-        want = bank.find_contacts(*args, threads=1)
-        for name in ("pair_offsets", "pairs", "contact_offsets", "points", "normals", "overlaps"):
-            np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
-            np.testing.assert_array_equal(getattr(one, name), getattr(want, name))
-        for name in ("keys", "rotations", "shifts", "offsets", "near", "distances"):
-            np.testing.assert_array_equal(getattr(split, name), getattr(single, name))
-        served = got.counts[:, 6]
-        renewed += int(0 < served.sum() < len(served))  # kept and new lists joined
-        pb = pb + rng.normal(scale=0.004, size=pb.shape)
-    assert renewed > 0
-
-
 def _quat_mul(p, q):
     w1, x1, y1, z1 = p
     w2, x2, y2, z2 = q

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from engine import InvalidArgumentError, Pose, Scene, find_contacts, shapes
-from engine.collision.batch import PairCache
 from engine.collision.configuration import (
     SEARCH_COUNTERS,
     Contacts,
     batched_contacts,
     flat_contacts,
 )
+from engine.collision.pair_cache import PairCache
 
 
 def pile() -> Scene:

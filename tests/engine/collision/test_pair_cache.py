@@ -1,0 +1,126 @@
+"""The pair cache's parts: a search with the last search's pairs and chunks reads and renews
+each chunk's own part; any other search works on one flat part. Either way the contacts
+are a fresh traversal's and the lists one thread's, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from posed_pairs import query_arrays, random_queries
+
+import engine.collision.batch as batch
+import engine.collision.pair_cache as pair_cache
+from engine import PairCache, TreeBank, build_tree, shapes
+
+CONTACTS = ("pair_offsets", "pairs", "contact_offsets", "points", "normals", "overlaps")
+LISTS = ("keys", "rotations", "shifts", "offsets", "near", "distances")
+
+
+@pytest.fixture(scope="module")
+def trees():
+    return [
+        build_tree(shapes.noisy_sphere(subdivisions=1, eta_r=1.3, seed=2), epsilon=0.03),
+        build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
+        build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
+    ]
+
+
+@pytest.fixture
+def many_chunks(monkeypatch):
+    """Chunks of 4 pairs, and every join on the worker threads."""
+    monkeypatch.setattr(batch, "_PAIRS_PER_TASK", 4)
+    monkeypatch.setattr(pair_cache, "PARALLEL_JOIN", 0)
+
+
+def walk(trees, seed: int, steps: int, count: int = 48, jump: int = -1):
+    """A random walk of ``count`` body pairs through contact: yields the query arrays of
+    each step (B drifts by a few mm a step; after step ``jump`` every B moves by 0.05,
+    past every list's skin)."""
+    rng = np.random.default_rng(seed)
+    ta, pa, qa, tb, pb, qb = query_arrays(trees, random_queries(trees, count, seed=seed))
+    for step in range(steps):
+        yield ta, pa, qa, tb, pb, qb
+        pb = pb + rng.normal(scale=0.004, size=pb.shape) + (0.05 if step == jump else 0.0)
+
+
+def equal(a, b, names) -> None:
+    for name in names:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_each_chunk_reads_and_renews_its_own_part(trees, many_chunks, monkeypatch):
+    bank = TreeBank(trees, "float64")
+    renewals = []
+    renew = PairCache._renew
+
+    def counted(self, c, kept, result):
+        if self is split:
+            renewals.append((int(kept.sum()), len(kept)))
+        return renew(self, c, kept, result)
+
+    monkeypatch.setattr(PairCache, "_renew", counted)
+    split, single = PairCache(), PairCache()
+    keys = np.arange(48, dtype=np.int64) * 7 + 3  # in order: the first search makes parts
+    for args in walk(trees, seed=5, steps=30, jump=15):
+        got = bank.find_contacts(*args, cache=split, keys=keys, threads=2)
+        want = bank.find_contacts(*args, threads=1)
+        equal(got, want, CONTACTS)
+        equal(bank.find_contacts(*args, cache=single, keys=keys, threads=1), want, CONTACTS)
+    assert len(split._parts) == 8  # 48 pairs, 4 chunks a thread: never joined
+    kept = np.array(renewals)
+    assert len(kept) == 29 * 8  # every search after the first went by part
+    assert ((kept[:, 0] > 0) & (kept[:, 0] < kept[:, 1])).any()  # kept and new lists joined
+    assert (kept[:, 0] == 0).any()  # every list of a part new
+    equal(split, single, LISTS)  # read: the parts joined once
+    assert len(split._parts) == 1
+
+
+@pytest.mark.parametrize("change", ["keys", "threads", "order"])
+def test_other_searches_work_on_one_flat_part(trees, many_chunks, change):
+    """Pairs dropped and added, another thread count, keys out of order: the general path,
+    with the same contacts and, after it, the same lists as one thread's."""
+    bank = TreeBank(trees, "float64")
+    split, single = PairCache(), PairCache()
+    keys = np.arange(48, dtype=np.int64) * 7 + 3
+    rng = np.random.default_rng(3)
+    for step, args in enumerate(walk(trees, seed=9, steps=12)):
+        threads, mine = 2, np.arange(48)
+        if change == "keys" and step % 3 == 2:
+            mine = np.sort(rng.choice(48, 40, replace=False))
+        if change == "threads" and step % 2:
+            threads = 3
+        if change == "order" and step % 4 == 1:
+            mine = rng.permutation(48)
+        sub = tuple(a[mine] for a in args)
+        got = bank.find_contacts(*sub, cache=split, keys=keys[mine], threads=threads)
+        equal(got, bank.find_contacts(*sub, threads=1), CONTACTS)
+        bank.find_contacts(*sub, cache=single, keys=keys[mine], threads=1)
+        equal(split, single, LISTS)
+
+
+def test_parallel_joins_equal_one_threads_lists(trees, many_chunks):
+    """Every step read (so every search works on one flat part, renewed by the parallel
+    join): after each step the cache holds the very lists one thread leaves."""
+    bank = TreeBank(trees, "float64")
+    split, single = PairCache(), PairCache()
+    keys = np.random.default_rng(11).permutation(np.arange(48) * 5 + 2)
+    renewed = 0
+    for args in walk(trees, seed=5, steps=30):
+        got = bank.find_contacts(*args, cache=split, keys=keys, threads=2)
+        one = bank.find_contacts(*args, cache=single, keys=keys, threads=1)
+        equal(got, bank.find_contacts(*args, threads=1), CONTACTS)
+        equal(one, got, CONTACTS)
+        equal(split, single, LISTS)
+        served = got.counts[:, 6]
+        renewed += int(0 < served.sum() < len(served))  # kept and new lists joined
+    assert renewed > 0
+
+
+def test_clear_and_sizes(trees):
+    bank = TreeBank(trees, "float64")
+    cache = PairCache()
+    args = next(walk(trees, seed=1, steps=1))
+    bank.find_contacts(*args, cache=cache, keys=np.arange(48), threads=1)
+    assert len(cache) == 48 and cache.nbytes > cache.keys.nbytes
+    cache.clear()
+    assert len(cache) == 0 and len(cache.near) == 0 and cache.offsets.tolist() == [0]
