@@ -79,16 +79,18 @@ def batched_contacts(
     batched call: body i is tree ``tree_index[i]`` of ``bank`` with its mesh-frame origin at
     ``origins (n, 3)`` float64 and orientation ``orientations (n, 4)`` (unit within 1e-6,
     renormalised here as the bank would); pair (a, b) is cached under ``a·n + b``."""
-    norms = np.linalg.norm(orientations, axis=1)
-    if not (np.abs(norms - 1.0) <= 1e-6).all():  # NaN fails too
-        bad = int(np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6))[0])
+    k = len(pairs)
+    queries = kb.PairQueries(
+        np.empty(k, np.int64), np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 4)),
+        np.empty((k, 3)), np.empty((k, 4)),
+    )  # fmt: skip
+    bad = kb.gather_queries(pairs, tree_index, origins, orientations, queries)
+    if bad >= 0:
+        norm = float(np.linalg.norm(orientations[bad]))
         raise InvalidArgumentError(
-            f"orientations[{bad}] must be a unit quaternion; its norm is {norms[bad]:.6g}"
+            f"orientations[{bad}] must be a unit quaternion; its norm is {norm:.6g}"
         )
-    unit = orientations / norms[:, None]
-    a, b = pairs[:, 0], pairs[:, 1]
-    queries = kb.PairQueries(tree_index[a], tree_index[b], origins[a], unit[a], origins[b], unit[b])
-    keys = a * len(tree_index) + b
+    keys = pairs[:, 0] * len(tree_index) + pairs[:, 1]
     batch = bank.run(queries, kernel, threads, cache, keys, keep_pairs=False)
     totals = batch.counts.sum(axis=0)
     counters = dict.fromkeys(SEARCH_COUNTERS, 0)

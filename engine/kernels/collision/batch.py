@@ -83,6 +83,40 @@ class PairQueries(NamedTuple):
     orientation_b: np.ndarray  # (k, 4) float64
 
 
+@njit(**EXACT_JIT)
+def gather_queries(pairs, tree_index, origins, orientations, out):
+    """Write ``out`` (:class:`PairQueries` of ``k`` rows) for body ``pairs (k, 2)`` int64:
+    each body's tree ``tree_index (n,)`` int64, origin ``origins (n, 3)`` and orientation
+    ``orientations (n, 4)`` float64, divided by its norm as ``q / np.linalg.norm(q)``
+    rounds it (the sum of squares in numpy's order). Returns the first body whose
+    orientation's norm is not within 1e-6 of 1 (NaN included), writing nothing; else −1.
+    One pass instead of numpy's six gathers and five passes over the bodies (2.3 ms of
+    serial host work per evaluation of the paper's 24,576-sphere grid)."""
+    n = orientations.shape[0]
+    unit = np.empty((n, 4))
+    for i in range(n):
+        q0, q1, q2, q3 = (
+            orientations[i, 0],
+            orientations[i, 1],
+            orientations[i, 2],
+            orientations[i, 3],
+        )
+        norm = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+        if not abs(norm - 1.0) <= 1e-6:
+            return i
+        unit[i, 0], unit[i, 1], unit[i, 2], unit[i, 3] = q0 / norm, q1 / norm, q2 / norm, q3 / norm
+    for t in range(pairs.shape[0]):
+        a, b = pairs[t, 0], pairs[t, 1]
+        out.tree_a[t], out.tree_b[t] = tree_index[a], tree_index[b]
+        for c in range(3):
+            out.position_a[t, c] = origins[a, c]
+            out.position_b[t, c] = origins[b, c]
+        for c in range(4):
+            out.orientation_a[t, c] = unit[a, c]
+            out.orientation_b[t, c] = unit[b, c]
+    return -1
+
+
 class QueryParams(NamedTuple):
     """Search parameters shared by every query of a call (see :func:`query_kernel`)."""
 

@@ -104,6 +104,36 @@ def test_the_batched_search_names_an_orientation_that_is_not_a_unit_quaternion()
         batched_contacts(scene.bank, scene.tree_index, pairs, origins, bad, "hybrid", 1, None)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_queries_are_gathered_and_renormalised_as_numpy_does(seed):
+    """The one-pass gather of a configuration's queries gives numpy's bits: norms within
+    1e-6 of 1 divided out as ``q / np.linalg.norm(q, axis=1)``, rows gathered per pair;
+    NaN and off-unit orientations are named."""
+    from engine.kernels.collision import batch as kb
+
+    rng = np.random.default_rng(seed)
+    n, k = 500, 2000
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q *= 1 + rng.uniform(-9e-7, 9e-7, (n, 1))  # off by up to 0.9e-6: renormalised
+    origins, tree_index = rng.normal(size=(n, 3)), rng.integers(0, 7, n)
+    pairs = np.sort(rng.integers(0, n, (k, 2)), axis=1)
+    out = kb.PairQueries(*(np.empty(shape, dtype) for shape, dtype in [
+        (k, np.int64), (k, np.int64), ((k, 3), float), ((k, 4), float), ((k, 3), float),
+        ((k, 4), float),
+    ]))  # fmt: skip
+    assert kb.gather_queries(pairs, tree_index, origins, q, out) == -1
+    unit = q / np.linalg.norm(q, axis=1)[:, None]
+    a, b = pairs[:, 0], pairs[:, 1]
+    want = (tree_index[a], tree_index[b], origins[a], unit[a], origins[b], unit[b])
+    for got, expected in zip(out, want, strict=True):
+        np.testing.assert_array_equal(got, expected)
+    for bad, value in ((17, np.nan), (400, 1.01)):
+        off = q.copy()
+        off[bad] *= value
+        assert kb.gather_queries(pairs, tree_index, origins, off, out) == bad
+
+
 def test_no_candidate_pairs_give_empty_contacts():
     scene = Scene()
     scene.add_bodies(shapes.icosphere(1), [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
