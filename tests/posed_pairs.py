@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine import Pose
+from engine import Pose, build_tree, shapes
 
 
 def random_queries(trees, count, seed):
@@ -37,3 +37,12 @@ def query_arrays(trees, queries) -> tuple:
         np.array([q[3].position for q in queries]),
         np.array([q[3].orientation for q in queries]),
     )
+
+
+def batch_trees() -> list:
+    """The batch tests' trees: a noisy sphere, a torus and a plane (different ε)."""
+    return [
+        build_tree(shapes.noisy_sphere(subdivisions=1, eta_r=1.3, seed=2), epsilon=0.03),
+        build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
+        build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
+    ]

@@ -105,25 +105,11 @@ class PairCache:
     def nbytes(self) -> int:
         return self.keys.nbytes + sum(a.nbytes for part in self._parts for a in part)
 
-    @property
-    def rotations(self) -> np.ndarray:
-        return self._flat().rotations
-
-    @property
-    def shifts(self) -> np.ndarray:
-        return self._flat().shifts
-
-    @property
-    def offsets(self) -> np.ndarray:
-        return self._flat().offsets
-
-    @property
-    def near(self) -> np.ndarray:
-        return self._flat().near
-
-    @property
-    def distances(self) -> np.ndarray:
-        return self._flat().distances
+    rotations = property(lambda self: self._flat().rotations, doc="(m, 3, 3) float64")
+    shifts = property(lambda self: self._flat().shifts, doc="(m, 3) float64")
+    offsets = property(lambda self: self._flat().offsets, doc="(m + 1,) int64")
+    near = property(lambda self: self._flat().near, doc="(L, 2) int64")
+    distances = property(lambda self: self._flat().distances, doc="(L,) float64")
 
     def _flat(self, threads: int = 1) -> Lists:
         """Every entry's lists as one part (the parts joined, once)."""

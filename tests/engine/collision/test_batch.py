@@ -4,26 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from posed_pairs import query_arrays, random_queries
+from posed_pairs import batch_trees, query_arrays, random_queries
 
 from engine import (
     InvalidArgumentError,
     Pose,
     TreeBank,
-    build_tree,
     find_contacts,
     find_contacts_batch,
-    shapes,
 )
 
 
 @pytest.fixture(scope="module")
 def trees():
-    return [
-        build_tree(shapes.noisy_sphere(subdivisions=1, eta_r=1.3, seed=2), epsilon=0.03),
-        build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
-        build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
-    ]
+    return batch_trees()
 
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from posed_pairs import query_arrays, random_queries
+from posed_pairs import batch_trees, query_arrays, random_queries
 
 from engine import PairCache, TreeBank, build_tree, shapes, triangle_distances
 from engine.kernels.collision.contact_merge import key_order
@@ -17,12 +17,8 @@ SKIN = 0.5
 
 @pytest.fixture(scope="module")
 def trees():
-    return [
-        build_tree(shapes.noisy_sphere(subdivisions=1, eta_r=1.3, seed=2), epsilon=0.03),
-        build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
-        build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
-        build_tree(shapes.uv_sphere(16, 8, radius=0.8), epsilon=0.02),  # pole fans
-    ]
+    pole_fans = build_tree(shapes.uv_sphere(16, 8, radius=0.8), epsilon=0.02)
+    return [*batch_trees(), pole_fans]
 
 
 def _all_leaf_pairs(tree_a, pose_a, tree_b, pose_b):

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from posed_pairs import query_arrays, random_queries
+from posed_pairs import batch_trees, query_arrays, random_queries
 
 import engine.collision.batch as batch
 import engine.collision.pair_cache as pair_cache
-from engine import PairCache, TreeBank, build_tree, shapes
+from engine import PairCache, TreeBank
 
 CONTACTS = ("pair_offsets", "pairs", "contact_offsets", "points", "normals", "overlaps")
 LISTS = ("keys", "rotations", "shifts", "offsets", "near", "distances")
@@ -18,11 +18,7 @@ LISTS = ("keys", "rotations", "shifts", "offsets", "near", "distances")
 
 @pytest.fixture(scope="module")
 def trees():
-    return [
-        build_tree(shapes.noisy_sphere(subdivisions=1, eta_r=1.3, seed=2), epsilon=0.03),
-        build_tree(shapes.torus(major_segments=12, minor_segments=6), epsilon=0.02),
-        build_tree(shapes.plane(size=(3.0, 3.0), divisions=4), epsilon=0.01),
-    ]
+    return batch_trees()
 
 
 @pytest.fixture
