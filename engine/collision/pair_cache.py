@@ -165,8 +165,8 @@ class PairCache:
         near, distances = np.empty((offsets[-1], 2), np.int64), np.empty(offsets[-1])
         join_lists(
             sizes,
-            old.offsets[:-1].copy(),
-            result.near_offsets[:-1].copy(),
+            old.offsets[:-1],
+            result.near_offsets[:-1],
             kept,
             (old.near, old.distances),
             (result.near, result.near_distances),
