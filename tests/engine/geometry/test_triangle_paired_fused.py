@@ -158,12 +158,17 @@ def test_other_sweep_counts_take_the_block_path():
 
 
 def test_mixed_input_dtypes_agree_with_float64_inputs():
+    """float32 A with float64 B against both as float64: bit for bit, except float32
+    closest points, held as in ``paired_rounding``. In one of three fresh-clone CI runs on
+    the AVX-512 VM, 2 of 3,000 coordinates differed in their last bits; the other two runs
+    were bit for bit. Why it varies between runs was not established."""
     a, b = _pairs(13, 200)
     a32 = a.astype(np.float32)
     want = triangle_distances(a32.astype(np.float64), b, "hybrid", "float32", 0.05)
     got = triangle_distances(a32, b, "hybrid", "float32", 0.05)
+    scale = np.abs(np.concatenate([a, b], axis=1)).max(axis=(1, 2))
     for name in FIELDS:
-        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), name)
+        assert_same_field(name, getattr(got, name), getattr(want, name), scale, name)
 
 
 def test_exact_distances_are_realised_by_the_points():
