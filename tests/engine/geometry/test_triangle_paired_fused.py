@@ -159,9 +159,9 @@ def test_other_sweep_counts_take_the_block_path():
 
 def test_mixed_input_dtypes_agree_with_float64_inputs():
     """float32 A with float64 B against both as float64: bit for bit, except float32
-    closest points, held as in ``paired_rounding``. In one of three fresh-clone CI runs on
-    the AVX-512 VM, 2 of 3,000 coordinates differed in their last bits; the other two runs
-    were bit for bit. Why it varies between runs was not established."""
+    closest points, held as in ``paired_rounding``. On the AVX-512 VM such points vary in
+    their last bits between calls on 2 threads (docs/kernels.md): in one of three
+    fresh-clone CI runs, 2 of 3,000 coordinates differed."""
     a, b = _pairs(13, 200)
     a32 = a.astype(np.float32)
     want = triangle_distances(a32.astype(np.float64), b, "hybrid", "float32", 0.05)
