@@ -201,11 +201,12 @@ def test_mixed_sets_and_arrays_and_awkward_inputs_agree():
     }
     for arr in variants["read-only"]:
         arr.flags.writeable = False
+    scale = np.abs(np.concatenate([a, b], axis=1)).max(axis=(1, 2))
     for name, (x, y) in variants.items():
         got = triangle_distances(x, y, "hybrid", "float32", 0.05)
         ref = want if isinstance(x, TriangleSet) or isinstance(y, TriangleSet) else want_raw
-        for field in FIELDS:
-            np.testing.assert_array_equal(getattr(got, field), getattr(ref, field), name)
+        for field in FIELDS:  # float32 points: their last bits vary between calls (AVX-512)
+            assert_same_field(field, getattr(got, field), getattr(ref, field), scale, name)
 
 
 @pytest.mark.parametrize("precision", PRECISIONS)
