@@ -149,7 +149,7 @@ def summary(results: list[dict]) -> list[dict]:
                 "threads": n,
                 "first_step_s": r["steps"][0]["seconds"],
                 "steady_step_s": steady[n],
-                "speedup": steady[base] / steady[n] * 1.0,
+                "speedup": steady[base] / steady[n],
                 "speedup_over_threads": base,
             }
             if 4 in steady and n >= 4:

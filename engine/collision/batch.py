@@ -13,7 +13,6 @@ it: both run the same ``query_kernel`` on the same arrays and poses.
 from __future__ import annotations
 
 import functools
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -28,14 +27,13 @@ from engine.geometry.distance import DEFAULT_PRECISION
 from engine.geometry.pose import Pose
 from engine.kernels.collision import batch as kb
 from engine.trees.tree import SurrogateTree
-from engine.workers import worker_pool
+from engine.workers import CPUS, worker_pool
 
 __all__ = ["ContactBatch", "TreeBank", "find_contacts_batch"]
 
 MAX_LEVELS = 32
 """Per-level comparison counts kept per pair (deeper levels are counted, not kept)."""
 _PAIRS_PER_TASK = 64  # below this many pairs per worker, one thread is faster
-_CPUS = os.cpu_count() or 1  # looked up once: os.cpu_count() costs µs per call
 
 
 @dataclass(frozen=True)
@@ -233,7 +231,7 @@ class TreeBank:
         (``pairs`` then raises): a scene step reads only their count."""
         queries = kb.PairQueries(*queries)
         k = len(queries.tree_a)
-        threads = int(threads or _CPUS)
+        threads = int(threads or CPUS)
         if threads == 1 or k < 2 * _PAIRS_PER_TASK:
             bounds = np.array([0, k], np.int64)
         else:

@@ -26,9 +26,10 @@ DEFAULT_SKIN = 0.25
 """Default :class:`PairCache` skin, relative to ε_a + ε_b. A larger skin keeps lists
 valid for more motion but makes each list longer and its traversal dearer (ε grown more):
 on the paper's grid 0.25 against 0.5 took a traversal that makes the list of a pole pair
-from 301 to 251 µs and the "aligned" grid's first step from 7.3–7.6 to 6.4–6.6 s (2
-threads), steady steps unchanged; a rolling sphere and a falling pile of 64 spheres
-(implicit-surrogate) stepped in the same time (0.23/0.24 and 3.73/3.71 ms)."""
+from 314 to 258 µs (``benchmarks/grid_pairs.py --skin``, 1 thread) and the "aligned"
+grid's first step from 7.3–7.6 to 6.4–6.6 s (2 threads), steady steps unchanged; a
+rolling sphere and a falling pile of 64 spheres (implicit-surrogate) stepped in the same
+time (0.23/0.24 and 3.73/3.71 ms)."""
 
 PARALLEL_JOIN = 1 << 24
 """Bytes from which joins copy on the worker threads. Most of a large join's time is
