@@ -13,7 +13,9 @@ within g of the node's triangle, see :mod:`engine.collision.proximity`):
 1. spheres: ``|c_a − c_b| − r_a − r_b`` (bounding spheres of the covered faces; a pair
    is dropped on squared distances, without a square root);
 2. boxes: the gap of the two nodes' oriented boxes on their 6 axes and the axis through
-   their centres (:func:`~engine.kernels.collision.distance_bounds.box_gap`);
+   their centres (:func:`~engine.kernels.collision.distance_bounds.box_gap`; for the
+   children of an unfolded pair also the gaps on one box's three axes together,
+   :func:`~engine.kernels.collision.distance_bounds.child_bounds`);
 3. triangles: the exact distance of the two node triangles less ``g_a + g_b``
    (:func:`~engine.kernels.geometry.triangle_points.exact_paired`, vectorised over up to
    a block of pairs, in the query precision); for a leaf pair, its exact distance.

@@ -296,9 +296,10 @@ def covered_faces(tree) -> list[np.ndarray]:
 @pytest.mark.parametrize("pair", PAIRS)
 def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
     """On random poses (overlapping to apart, and moved to touching), for random node pairs
-    and every leaf pair's ancestors: the box bound, the sphere bound, and the node
-    triangles' exact distance less g never exceed the least exact distance between a face
-    covered by A's node and one covered by B's (up to rounding)."""
+    and every leaf pair's ancestors: the box bound, the sphere bound, the children's bound
+    (``child_bounds``: at least both), and the node triangles' exact distance less g never
+    exceed the least exact distance between a face covered by A's node and one covered by
+    B's (up to rounding)."""
     name_a, name_b = pair
     tree_a, tree_b = body(name_a)[1], body(name_b)[1]
     rows_a, rows_b = tree_a.views.distance_rows, tree_b.views.distance_rows
@@ -306,6 +307,7 @@ def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
     rng = np.random.default_rng(15)
     radii = tree_a.bounding_radius + tree_b.bounding_radius
     placed = np.empty((db.N_PLACED, 1))
+    node, low = np.empty((db.PLACED, 1)), np.empty(1)
     for pose in range(6):
         q = rng.normal(size=(2, 4))
         pose_a = Pose(rng.normal(size=3), q[0] / np.linalg.norm(q[0]))
@@ -335,6 +337,10 @@ def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
             sphere = np.linalg.norm(centre_b - rows_a[i, ds.CENTRE : ds.CENTRE + 3])
             sphere -= rows_a[i, ds.RADIUS] + rows_b[j, ds.RADIUS]
             assert sphere <= true + tol, (pose, i, j, sphere, true)
+            # the children's vectorised bound: at least both, never beyond the faces
+            db.place_node(rows_b, j, r, s, node, 0)
+            db.child_bounds(rows_a, i, node, 1, low)
+            assert max(box, sphere) - tol <= low[0] <= true + tol, (pose, i, j, low[0], true)
         for i, j in nodes_near(every, tree_a, tree_b):
             true = every[np.ix_(cover_a[i], cover_b[j])].min()
             assert db.box_gap(rows_a, i, rows_b, j, r, s) <= true + tol, (pose, i, j)
