@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from engine.kernels.collision.contact_merge import key_order
 from engine.kernels.collision.rigid import move_kernel
 from engine.kernels.geometry.triangle_batch import (
     BLOCK,
@@ -219,7 +220,7 @@ def by_faces(near, distances, face_a, face_b, n_faces_b):
     keys = np.empty(m, np.int64)
     for t in range(m):
         keys[t] = face_a[near[t, 0]] * n_faces_b + face_b[near[t, 1]]
-    order = np.argsort(keys)
+    order = key_order(keys)
     out = np.empty((m, 2), np.int64)
     sorted_distances = np.empty(m)
     for s in range(m):

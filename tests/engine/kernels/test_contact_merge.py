@@ -9,8 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from engine.kernels.collision.contact_merge import _deepest_first, _merge, contact_kernel
+from engine.kernels.collision.contact_merge import (
+    _deepest_first,
+    _merge,
+    _radix_order,
+    contact_kernel,
+    key_order,
+)
 
 
 def _reference_merge(points, normals, overlaps, radius):
@@ -135,3 +143,24 @@ def test_a_weighted_row_merges_as_its_copies(seed, radius):
     assert k == len(want[0])
     for got, ref in zip(k_out, want, strict=True):
         np.testing.assert_allclose(got[:k], ref, rtol=1e-14, atol=1e-15)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    size=st.integers(1, 700),
+    bits=st.integers(1, 62),
+    runs=st.integers(1, 40),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_key_order_is_argsorts_permutation_on_runs(size, bits, runs, seed):
+    """Distinct non-negative keys of up to 62 bits in ``runs`` sorted runs (the traversal
+    reports its leaf pairs so): ``key_order`` (its radix sort from ``RADIX_FROM`` keys,
+    its merge of two runs, or ``np.argsort``) and ``_radix_order`` itself give
+    ``np.argsort``'s permutation."""
+    rng = np.random.default_rng(seed)
+    keys = np.unique(rng.integers(0, 2**bits, size=size, dtype=np.int64))
+    rng.shuffle(keys)
+    cuts = np.sort(rng.choice(np.arange(1, max(len(keys), 2)), size=runs - 1))
+    keys = np.concatenate([np.sort(part) for part in np.split(keys, cuts)])
+    np.testing.assert_array_equal(key_order(keys), np.argsort(keys))
+    np.testing.assert_array_equal(_radix_order(keys), np.argsort(keys))
