@@ -156,14 +156,7 @@ def find_contacts(
     -------
     ContactSet
     """
-    # the common case, exact types, costs 4 identity tests (a far pair's query is ~2 µs)
-    if not (
-        type(tree_a) is SurrogateTree
-        and type(tree_b) is SurrogateTree
-        and type(pose_a) is Pose
-        and type(pose_b) is Pose
-    ):
-        check_posed_pair(tree_a, pose_a, tree_b, pose_b)
+    check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     check_kernel(kernel), check_precision(precision)  # validate before any work
     if traversal not in ("pairs", "sets"):
         raise InvalidArgumentError(f"traversal must be 'pairs' or 'sets', got {traversal!r}")

@@ -49,7 +49,16 @@ points count as coincident (its normal is then A's face normal)."""
 
 def check_posed_pair(tree_a, pose_a, tree_b, pose_b) -> None:
     """Raise :class:`~engine.errors.InvalidArgumentError` unless the trees are
-    :class:`~engine.trees.tree.SurrogateTree` and the poses :class:`~engine.geometry.pose.Pose`."""
+    :class:`~engine.trees.tree.SurrogateTree` and the poses :class:`~engine.geometry.pose.Pose`.
+    The common case, exact types, costs four identity tests (a far pair's whole query is
+    about 2 µs)."""
+    if (
+        type(tree_a) is SurrogateTree
+        and type(tree_b) is SurrogateTree
+        and type(pose_a) is Pose
+        and type(pose_b) is Pose
+    ):
+        return
     for name, tree in (("tree_a", tree_a), ("tree_b", tree_b)):
         if not isinstance(tree, SurrogateTree):
             raise InvalidArgumentError(f"{name} must be a SurrogateTree")
