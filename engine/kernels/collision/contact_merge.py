@@ -165,7 +165,7 @@ def key_order(keys):
 
 @njit(**JIT)
 def _radix_order(keys):
-    """The stable ascending order of ``keys (m,)`` int64, all ≥ 0: a least-significant-digit
+    """The stable ascending order of ``keys (m ≥ 1,)`` int64, all ≥ 0: a least-significant-digit
     radix sort, as few passes of at most ``RADIX_BITS`` bits as the largest key needs (each
     pass a count, a prefix sum and a scatter of the keys with their rows)."""
     m = keys.shape[0]

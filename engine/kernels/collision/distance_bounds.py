@@ -261,7 +261,9 @@ def bound_placed(a, i, placed, k, best, margin):
 @njit(**BORROW)
 def child_bounds(a, i, placed, n, out):
     """``out[t]`` (``0 ≤ t < n``): the larger of bounds 1 and 2 of A's node ``i`` and the
-    placed B node ``t`` (:func:`place_node`); one loop over the columns, vectorised."""
+    placed B node ``t`` (:func:`place_node`), bound 2 with the gaps on one box's three axes
+    taken together (:func:`_axes_gap`: at least :func:`placed_gap`); one loop over the
+    columns, vectorised."""
     ox, oy, oz, rad = a[i, CENTRE], a[i, CENTRE + 1], a[i, CENTRE + 2], a[i, RADIUS]
     bx, by, bz = a[i, BOX], a[i, BOX + 1], a[i, BOX + 2]
     h0, h1, h2 = a[i, BOX + 12], a[i, BOX + 13], a[i, BOX + 14]

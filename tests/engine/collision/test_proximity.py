@@ -344,6 +344,9 @@ def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
         for i, j in nodes_near(every, tree_a, tree_b):
             true = every[np.ix_(cover_a[i], cover_b[j])].min()
             assert db.box_gap(rows_a, i, rows_b, j, r, s) <= true + tol, (pose, i, j)
+            db.place_node(rows_b, j, r, s, node, 0)
+            db.child_bounds(rows_a, i, node, 1, low)
+            assert low[0] <= true + tol, (pose, i, j, low[0], true)
             tri = pose_a.apply(tree_a.triangles[i])[None], pose_b.apply(tree_b.triangles[j])[None]
             node_d = triangle_distances(*tri, kernel="exact").distance[0]
             gap = rows_a[i, ds.GAP] + rows_b[j, ds.GAP]
