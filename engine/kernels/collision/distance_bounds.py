@@ -17,8 +17,8 @@ the two centres. :func:`place_box` moves a B box into A's frame once and
 one box's three axes together (:func:`_axes_gap`): the axes are orthonormal, so a point
 whose projections on them clear gaps g₀, g₁, g₂ ≥ 0 lies at least √(g₀² + g₁² + g₂²)
 away; where two boxes sit diagonally apart that is up to √3 times the largest gap. (On
-``benchmarks/peers.py``'s far poses of real meshes it drops 5–10 % of the node pairs and
-10–16 % of the time; in the scalar bounds, where pairs are few, its arithmetic cost more
+``benchmarks/peers.py``'s far poses of real meshes it drops 3–11 % of the node pairs and
+5–16 % of the time; in the scalar bounds, where pairs are few, its arithmetic cost more
 than it saved.)
 
 Node rows (``(N, ≥ BOX + 15)`` float64, the distance search's row layout): columns
