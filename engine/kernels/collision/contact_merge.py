@@ -127,7 +127,7 @@ RADIX_FROM = 128
 quicksort (the traversal's 1,296 leaf pairs of the paper's pole-to-pole grid pair, in runs
 of about 8: :func:`~engine.kernels.collision.pair_lists.by_faces`, keys and copies
 included, took 13.7 µs with the quicksort and 6.0 µs with the radix sort on the AVX-512 VM
-of BENCHMARKS.md)."""
+of BENCHMARKS.md; 128 is a round number, the crossover was not measured)."""
 RADIX_BITS = 11  # most bits per radix pass
 
 
