@@ -167,9 +167,27 @@ def find_contacts(
     if iterations < 1:
         raise InvalidArgumentError(f"iterations must be at least 1, got {iterations}")
     if hierarchy and traversal == "pairs":
-        if far_apart(tree_a, pose_a, tree_b, pose_b):
+        # far_apart inline, using the last outcome of the same pair of trees (temporal
+        # coherence): past the early-out last time (TreeViews.near_partner), one kernel
+        # call that makes the early-out's bounds-only search itself (FAR_APART when it
+        # shows them apart); else that search in its own small call first. The same result
+        # either way, counters included (BENCHMARKS.md, issue 15, ninth step).
+        views_a, views_b = tree_a.views, tree_b.views
+        distance, slack = _far_slack(tree_a, pose_a, tree_b, pose_b)
+        if distance > views_a.root_reach + views_b.root_reach + 2.0 * slack:
             return FAR_APART
-        # far_apart ran the kernel's bounds-only search, with the same outcome: skipped
+        partner = id(views_b)
+        if views_a.near_partner == partner:
+            found = _pair_query(
+                tree_a, pose_a, tree_b, pose_b, kernel, precision, int(iterations), slack
+            )
+            if found is FAR_APART:
+                views_a.near_partner = 0
+            return found
+        if _roots_apart(views_a, pose_a, views_b, pose_b, slack):
+            return FAR_APART
+        views_a.near_partner = partner
+        # the bounds-only search ran, with the kernel's outcome: skipped there
         return _pair_query(tree_a, pose_a, tree_b, pose_b, kernel, precision, int(iterations), -1.0)
     return _search(
         tree_a, pose_a, tree_b, pose_b, kernel, hierarchy, precision, traversal, iterations
@@ -226,7 +244,8 @@ def _pair_query(
     """The pair-front search in one
     :func:`~engine.kernels.collision.pair_query.pair_query` call (flat arguments; the
     per-tree ones cached on ``tree.views``; ``bounds_margin`` float, its bounds-only
-    search's margin, negative to skip that search). The contacts are written into fresh buffers
+    search's margin, negative to skip that search; :data:`FAR_APART` when that search shows
+    the bodies apart). The contacts are written into fresh buffers
     with room for as many leaf pairs as either tree's queries last needed
     (``views.leaf_pairs_hint``; run again, with room, when more are found)."""
     views_a, views_b = tree_a.views, tree_b.views
@@ -261,6 +280,8 @@ def _pair_query(
             break
         capacity = 2 * found
         views_a.leaf_pairs_hint = views_b.leaf_pairs_hint = capacity
+    if found < 0:  # the bounds-only search showed the bodies apart, as far_apart would
+        return FAR_APART
     counts = counters[: tb.N_STATS + min(depth, _LEVELS)].tolist()  # the levels recorded
     stats = _made(
         ContactStats,
@@ -334,9 +355,15 @@ def far_apart(tree_a: SurrogateTree, pose_a: Pose, tree_b: SurrogateTree, pose_b
     va, vb = tree_a.views, tree_b.views
     if distance > va.root_reach + vb.root_reach + 2.0 * slack:
         return True
+    return _roots_apart(va, pose_a, vb, pose_b, slack)
+
+
+def _roots_apart(views_a, pose_a, views_b, pose_b, slack: float) -> bool:
+    """:func:`~engine.kernels.collision.pair_query.roots_apart` of two trees' views at
+    their poses, with margin ``slack``."""
     return roots_apart(
-        va.bounds_table,
-        vb.bounds_table,
+        views_a.bounds_table,
+        views_b.bounds_table,
         pose_a.position,
         pose_a.orientation,
         pose_b.position,

@@ -169,6 +169,11 @@ class TreeViews:
         self.leaf_pairs_hint = 64
         """Room for leaf pairs that ``find_contacts`` gives its buffers on this tree: the
         most a query of it has needed so far (twice the count found), a hint only."""
+        self.near_partner = 0
+        """``id`` of the other tree's views in the last query of this tree (as body A)
+        that got past the host's early-out, else 0: ``find_contacts`` runs that pair's
+        next query without the early-out's own kernel call (a hint only: the answer is
+        the same either way)."""
         self.geometry = (
             TreeGeometry(tree.triangles, tree.face, tree.parent) if geometry is None else geometry
         )

@@ -87,8 +87,9 @@ def pair_query(
     ``SEARCH_BUDGET`` node pairs tested: the same outcome as :func:`roots_apart` with that
     margin) the root pair counts as pruned and nothing else runs; a negative
     ``bounds_margin`` skips that search (the host has run :func:`roots_apart`, which found
-    them not apart). Then node pairs are pruned by their bounding spheres, then by their
-    boxes (:func:`~engine.kernels.collision.traversal.traverse`), with the query margin.
+    them not apart); it returns ``f = −1`` then. Then node pairs are pruned by their
+    bounding spheres, then by their boxes
+    (:func:`~engine.kernels.collision.traversal.traverse`), with the query margin.
     The arguments come in four groups: A's, B's (each fixed per tree, so the host keeps
     them as one tuple per tree), the poses and bounds margin, and the parameters.
 
@@ -115,10 +116,10 @@ def pair_query(
         and table_a.shape[0] > 0
         and table_b.shape[0] > 0
         and bounds_apart(table_a, table_b, rotation, shift, bounds_margin, SEARCH_BUDGET)
-    ):  # the root pair pruned, as the traversal counts it
+    ):  # the root pair pruned, as the traversal counts it; f = −1 tells the host
         stats[STAT_SPHERES] += 1
         none = np.int64(0)
-        return none, none, none, none, none
+        return np.int64(-1), none, none, none, none
     depth, unfoldings, n, found, _, _ = traverse(
         coords_a,
         frames_a,

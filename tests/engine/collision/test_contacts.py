@@ -314,6 +314,35 @@ def test_far_early_out_never_drops_what_the_kernel_keeps(
         assert ref.stats == contacts.FAR_APART.stats  # the kernel pruned the root pair
 
 
+@pytest.mark.parametrize("pair", [("a", "b"), ("b", "a")])
+def test_coherent_early_out_gives_the_same_result_either_way(pair):
+    """``find_contacts`` remembers whether the last query of a tree pair got past the
+    early-out (``TreeViews.near_partner``) and then leaves the early-out's bounds-only
+    search to the kernel. Around the threshold, near and far alike, the query gives the
+    same contacts and counters with the hint set and cleared, equal to the kernel's own
+    result, and the shared :data:`FAR_APART` exactly when :func:`far_apart` settles it."""
+    ta, tb = OFF_CENTRE[pair[0]], OFF_CENTRE[pair[1]]
+    reach = ta.views.root_reach + tb.views.root_reach
+    slack = _slack(ta, tb, reach)
+    turn = _small_turn(0.3, (0.2, -0.5, 0.8))
+    unit = np.array([1.0, 0.0, 0.0, 0.0])
+    for excess in (-40.0, -1.0, 0.5, 0.99, 1.01, 2.5, 50.0):
+        for turn_a, turn_b in ((unit, unit), (turn, unit), (unit, turn)):
+            pa, pb = _at_threshold(ta, tb, excess * slack, turn_a, turn_b)
+            ref = contacts._search(ta, pa, tb, pb, "hybrid", True, "float64", "pairs", 1)
+            apart = contacts.far_apart(ta, pa, tb, pb)
+            for hint in (0, id(tb.views), id(tb.views), 0):
+                ta.views.near_partner = hint
+                got = find_contacts(ta, pa, tb, pb)
+                assert (got is contacts.FAR_APART) == apart
+                np.testing.assert_array_equal(got.pairs, ref.pairs)
+                np.testing.assert_array_equal(got.points, ref.points)
+                np.testing.assert_array_equal(got.overlaps, ref.overlaps)
+                assert got.stats == ref.stats
+                if not apart:  # a query past the early-out marks the pair
+                    assert ta.views.near_partner == id(tb.views)
+
+
 def test_far_early_out_threshold_and_result():
     """Just above the spheres' threshold (the host's first test fires only at twice the
     slack, so here the look-ahead's sphere test settles it) the early-out returns the shared
