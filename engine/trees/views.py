@@ -171,9 +171,10 @@ class TreeViews:
         most a query of it has needed so far (twice the count found), a hint only."""
         self.near_partner = 0
         """``id`` of the other tree's views in the last query of this tree (as body A)
-        that got past the host's early-out, else 0: ``find_contacts`` runs that pair's
-        next query without the early-out's own kernel call (a hint only: the answer is
-        the same either way)."""
+        that got past the early-out, 0 once a later query of that pair is settled by the
+        early-out's bounds-only search: ``find_contacts`` runs that pair's next query
+        without the early-out's own kernel call (a hint only: the answer is the same
+        either way)."""
         self.geometry = (
             TreeGeometry(tree.triangles, tree.face, tree.parent) if geometry is None else geometry
         )
