@@ -82,14 +82,17 @@ def pair_query(
     :func:`~engine.kernels.collision.boxes.bounds_apart` reads them, or ``(0, 21)``) at
     ``position_a (3,)``, ``orientation_a (4,)`` (unit quaternion) and body B
     (``master_coords … spheres_b``, its ``body_b``; ``n_faces_b`` faces; ``boxes_b``,
-    ``table_b``) at ``position_b``, ``orientation_b``. When the node bounds alone show the
-    bodies apart by more than ``bounds_margin`` (float64; ``bounds_apart``, at most
-    ``SEARCH_BUDGET`` node pairs tested: the same outcome as :func:`roots_apart` with that
-    margin) the root pair counts as pruned and nothing else runs; a negative
-    ``bounds_margin`` skips that search (the host has run :func:`roots_apart`, which found
-    them not apart); it returns ``f = −1`` then. Then node pairs are pruned by their
+    ``table_b``) at ``position_b``, ``orientation_b``. Node pairs are pruned by their
     bounding spheres, then by their boxes
-    (:func:`~engine.kernels.collision.traversal.traverse`), with the query margin.
+    (:func:`~engine.kernels.collision.traversal.traverse`), with the query margin. When
+    the node bounds alone show the bodies apart by more than ``bounds_margin`` (float64;
+    ``bounds_apart``, at most ``SEARCH_BUDGET`` node pairs tested: the same outcome as
+    :func:`roots_apart` with that margin) the result is the root pair pruned: ``f = −1``,
+    nothing written, ``counters`` zero but for that pruned pair. That search runs only
+    when the traversal found no leaf pair in contact (a leaf pair in contact lies within
+    every bound that covers it, so the search cannot show those bodies apart), and not at
+    all for a negative ``bounds_margin`` (the host has run :func:`roots_apart`, which found
+    them not apart).
     The arguments come in four groups: A's, B's (each fixed per tree, so the host keeps
     them as one tuple per tree), the poses and bounds margin, and the parameters.
 
@@ -100,7 +103,7 @@ def pair_query(
     both, ``tiny`` and ``merge_radius``: the contact set-up
     (:func:`~engine.kernels.collision.contact_merge.contact_kernel`).
 
-    ``counters (N_STATS + L,)`` int64: the traversal's stats (added to), then the pairs
+    ``counters (N_STATS + L,)`` int64, zero: the traversal's stats, then the pairs
     evaluated per level. The contacts go to ``out_pairs (c, 2)`` int64, ``out_points,
     out_normals (c, 3)``, ``out_overlaps (c,)`` float64 when the ``f`` leaf pairs found fit
     (``f ≤ c``); else nothing is written and the caller runs the query again with room
@@ -111,15 +114,6 @@ def pair_query(
     margin = query_margin(extent_a, extent_b, shift, ulp)
     stats = counters[:N_STATS]
     levels = counters[N_STATS:]
-    if (
-        bounds_margin >= 0.0
-        and table_a.shape[0] > 0
-        and table_b.shape[0] > 0
-        and bounds_apart(table_a, table_b, rotation, shift, bounds_margin, SEARCH_BUDGET)
-    ):  # the root pair pruned, as the traversal counts it; f = −1 tells the host
-        stats[STAT_SPHERES] += 1
-        none = np.int64(0)
-        return np.int64(-1), none, none, none, none
     depth, unfoldings, n, found, _, _ = traverse(
         coords_a,
         frames_a,
@@ -146,6 +140,20 @@ def pair_query(
         stats,
         levels,
     )
+    # the bounds-only search, after the traversal: a leaf pair in contact lies within every
+    # bound that covers it, so that search would have found it (not apart) and only a
+    # traversal that found nothing needs it
+    if (
+        n == 0
+        and bounds_margin >= 0.0
+        and table_a.shape[0] > 0
+        and table_b.shape[0] > 0
+        and bounds_apart(table_a, table_b, rotation, shift, bounds_margin, SEARCH_BUDGET)
+    ):  # the root pair pruned, as the traversal counts it; f = −1 tells the host
+        counters[:] = 0
+        stats[STAT_SPHERES] = 1
+        none = np.int64(0)
+        return np.int64(-1), none, none, none, none
     if n > out_pairs.shape[0]:
         return n, np.int64(-1), np.int64(-1), depth, unfoldings
     position = np.empty(3)  # contact_kernel's set-up takes writable arrays

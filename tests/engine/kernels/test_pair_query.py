@@ -42,9 +42,13 @@ def _poses(seed: int, count: int):
         yield pa, pb
 
 
-def _run(ta, pa, tb_, pb, precision, capacity, boxes=True):
+def _run(ta, pa, tb_, pb, precision, capacity, boxes=True, bounds_margin=None):
     """``pair_query`` on the trees' cached sides; ``boxes=False`` passes no node boxes and
-    no bounds table (spheres only, as ``query_kernel`` prunes)."""
+    no bounds table (spheres only, as ``query_kernel`` prunes); ``bounds_margin``: the
+    bounds-only search's margin (default the early-out's slack, as ``find_contacts``
+    passes it)."""
+    if bounds_margin is None:
+        bounds_margin = contacts._far_slack(ta, pa, tb_, pb)[1]
     side_a, side_b = ta.views.query_side_a(precision), tb_.views.query_side_b
     if not boxes:
         side_a, side_b = (*side_a[:-2], *NO_BOXES), (*side_b[:-2], *NO_BOXES)
@@ -65,7 +69,7 @@ def _run(ta, pa, tb_, pb, precision, capacity, boxes=True):
         pa.orientation,
         pb.position,
         pb.orientation,
-        contacts._far_slack(ta, pa, tb_, pb)[1],  # the bounds-only search's margin
+        bounds_margin,
         *parameters,
         tiny,
         merge,
@@ -169,3 +173,31 @@ def test_results_are_ordinary_frozen_dataclasses(trees):
         s.iterative = 1
     with pytest.raises(dataclasses.FrozenInstanceError):
         got.points = None
+
+
+def test_bounds_search_settles_only_what_the_traversal_leaves_empty(trees):
+    """The bounds-only search runs after the traversal and only where it found no leaf
+    pair in contact: a pose with contacts gives the traversal's own result and counters
+    whatever ``bounds_margin`` says; a pose the node bounds show apart gives ``f = −1``
+    and counters that hold the pruned root pair alone; the same pose without that search
+    (negative margin) runs the traversal."""
+    ta, tb_ = trees
+    seen = {"contact": 0, "apart": 0}
+    for pa, pb in _poses(11, 60):
+        found, m, k, depth, unfoldings, counters, out = _run(ta, pa, tb_, pb, "float64", 4096)
+        plain = _run(ta, pa, tb_, pb, "float64", 4096, bounds_margin=-1.0)
+        apart = contacts.far_apart(ta, pa, tb_, pb)
+        if apart:
+            seen["apart"] += 1
+            assert found == -1 and m == k == depth == unfoldings == 0
+            want = np.zeros_like(counters)
+            want[tb.STAT_SPHERES] = 1
+            np.testing.assert_array_equal(counters, want)
+            assert plain[0] == 0 and plain[1] == 0  # no contact either way
+            continue
+        assert (found, m, k, depth, unfoldings) == plain[:5]
+        np.testing.assert_array_equal(counters, plain[5])
+        for got, want, rows in zip(out, plain[6], (m, k, k, k), strict=True):
+            np.testing.assert_array_equal(got[:rows], want[:rows])
+        seen["contact"] += m > 0
+    assert seen["contact"] > 0 and seen["apart"] > 0
