@@ -149,6 +149,7 @@ class TreeBank:
             child_count=np.concatenate([t.child_count for t in trees]),
             face_normals=np.concatenate([t.views.geometry.face_normals for t in trees]),
             spheres=np.concatenate([t.views.spheres for t in trees]),
+            boxes=np.concatenate([t.views.boxes for t in trees]),
         )
         nodes = np.array([len(t) for t in trees], np.int64)
         faces = np.array([len(t.views.geometry.face_normals) for t in trees], np.int64)

@@ -58,6 +58,7 @@ class NodeBank(NamedTuple):
     child_count: np.ndarray  # (N,) int32
     face_normals: np.ndarray  # (F, 3) float64: unit face normals
     spheres: np.ndarray  # (N, 4) float64: bounding sphere (centre, radius) of each node
+    boxes: np.ndarray  # (N, 15) float64: oriented bounding box of each node (as ``spheres``)
 
 
 class TreeTable(NamedTuple):
@@ -303,6 +304,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 bank.first_child[a0:a1],
                 bank.child_count[a0:a1],
                 bank.spheres[a0:a1],
+                bank.boxes[a0:a1],
             )
             body_b = (  # B from float64, moved into A's frame by the query
                 bank.master_coords[b0:b1],
@@ -312,6 +314,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 bank.first_child[b0:b1],
                 bank.child_count[b0:b1],
                 bank.spheres[b0:b1],
+                bank.boxes[b0:b1],
             )
             inflate = 0.5 * reach if skin > 0.0 else 0.0
             depth, unfoldings, result, near, distances = query_kernel(

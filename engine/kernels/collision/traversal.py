@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.collision.boxes import BOX_COLUMNS, box_set_up, place_row, separated
+from engine.kernels.collision.boxes import box_set_up, place_row, separated
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.geometry.triangle_batch import (
@@ -46,9 +46,11 @@ def query_kernel(
     near_distances)``.
 
     ``body_a = (coords (Na, 9), frames (Na, 14), epsilon (Na,) float64, face,
-    first_child, child_count (Na,) int32, spheres (Na, 4) float64)``: A's nodes
-    prepared in the query's precision, row-major, and each node's bounding sphere
-    (centre, radius) of its covered leaves' ε-regions; ``body_b``: the same for B
+    first_child, child_count (Na,) int32, spheres (Na, 4) float64, boxes (Na, 15)
+    float64)``: A's nodes prepared in the query's precision, row-major, each node's
+    bounding sphere (centre, radius) of its covered leaves' ε-regions and its oriented
+    box (as :mod:`~engine.kernels.collision.boxes` reads them; ``(0, 15)`` for none:
+    spheres only); ``body_b``: the same for B
     except that coordinates and frames are B's float64 master arrays in its body
     frame. ``pose = (rotation (3, 3), shift (3,))`` maps B's frame to A's.
     Surrogate ε get ``margin`` added. The search is :func:`traverse`'s.
@@ -67,8 +69,8 @@ def query_kernel(
     while B moves by less than ``2·inflate`` relative to A (see :func:`listed_query`);
     ``near_distances`` as :func:`traverse` returns them.
     """
-    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a = body_a
-    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b = body_b
+    coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a, boxes_a = body_a
+    master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b, boxes_b = body_b
     depth, unfoldings, n, found, near, near_distances = traverse(
         coords_a,
         frames_a,
@@ -84,8 +86,8 @@ def query_kernel(
         first_b,
         count_b,
         spheres_b,
-        np.empty((0, BOX_COLUMNS)),  # no boxes: spheres only
-        np.empty((0, BOX_COLUMNS)),
+        boxes_a,
+        boxes_b,
         pose[0],
         pose[1],
         margin,

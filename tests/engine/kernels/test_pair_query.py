@@ -79,13 +79,21 @@ def _run(ta, pa, tb_, pb, precision, capacity, boxes=True, bounds_margin=None):
     return found, m, k, depth, unfoldings, counters, out
 
 
-def _nested(ta, pa, tb_, pb, precision):
-    """The same query through ``query_kernel`` (nested arguments, as the batch calls it)."""
+def _nested(ta, pa, tb_, pb, precision, boxes=False):
+    """The same query through ``query_kernel`` (nested arguments, as the batch calls it);
+    ``boxes``: with the trees' node boxes, as the batch passes them, else spheres only."""
     dtype = np.dtype(precision).type
     rot_a, rotation, shift = relative_pose(pa.position, pa.orientation, pb.position, pb.orientation)
     sa, master = ta.views.geometry.node_set(precision, False), tb_.views.geometry.master
-    body_a = (sa.coords_rm, sa.frames_rm, *ta.views.structure, ta.views.spheres)
-    body_b = (master.coords_rm, master.frames_rm, *tb_.views.structure, tb_.views.spheres)
+    boxes_a, boxes_b = (ta.views.boxes, tb_.views.boxes) if boxes else NO_BOXES[:1] * 2
+    body_a = (sa.coords_rm, sa.frames_rm, *ta.views.structure, ta.views.spheres, boxes_a)
+    body_b = (
+        master.coords_rm,
+        master.frames_rm,
+        *tb_.views.structure,
+        tb_.views.spheres,
+        boxes_b,
+    )
     coarse, leaf = query_parameters("hybrid", dtype, 1)
     contact = contacts._contact_setup(ta, tb_, rot_a, pa.position.copy(), "hybrid")
     margin = query_margin(ta.views.geometry.extent, tb_.views.geometry.extent, shift, ULP[dtype])
@@ -98,14 +106,15 @@ def _nested(ta, pa, tb_, pb, precision):
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_flat_entry_equals_nested_traversal(trees, precision):
-    """Without node boxes, the flat entry is the nested traversal bit for bit, counters
-    included; with them (as ``find_contacts`` runs it) the contacts are the same and the
-    boxes prune node pairs the spheres keep."""
+    """The flat entry is the nested traversal (as the batch runs it) bit for bit, counters
+    included, without node boxes and with them; with them (as ``find_contacts`` and the
+    batch run it) the contacts are those of spheres only and the boxes prune node pairs
+    the spheres keep."""
     ta, tb_ = trees
     touching = 0
     compared = {True: 0, False: 0}
     for pa, pb in _poses(3, 40):
-        boxed = _run(ta, pa, tb_, pb, precision, 4096)
+        boxed = _run(ta, pa, tb_, pb, precision, 4096, bounds_margin=-1.0)  # traversal only
         found, m, k, depth, unfoldings, counters, out = _run(
             ta, pa, tb_, pb, precision, 4096, boxes=False
         )
@@ -115,13 +124,21 @@ def test_flat_entry_equals_nested_traversal(trees, precision):
         assert boxed[5][tb.N_STATS :].sum() <= counters[tb.N_STATS :].sum()
         for with_boxes, run in ((True, boxed[5]), (False, counters)):
             compared[with_boxes] += run[tb.N_STATS :].sum()
-        depth2, unfoldings2, result, stats, levels = _nested(ta, pa, tb_, pb, precision)
         assert m >= 0 and found >= m
-        assert (depth, unfoldings) == (depth2, unfoldings2)
-        np.testing.assert_array_equal(counters[: tb.N_STATS], stats)
-        np.testing.assert_array_equal(counters[tb.N_STATS :], levels)
-        for got, want in zip((out[0][:m], *(x[:k] for x in out[1:])), result, strict=True):
-            np.testing.assert_array_equal(got, want)
+        # the nested traversal, spheres only and with boxes, against each flat run
+        for flat, with_boxes in (
+            ((depth, unfoldings, counters, out), False),
+            (boxed[3:5] + boxed[5:], True),
+        ):
+            depth2, unfoldings2, result, stats, levels = _nested(
+                ta, pa, tb_, pb, precision, boxes=with_boxes
+            )
+            assert tuple(flat[:2]) == (depth2, unfoldings2)
+            np.testing.assert_array_equal(flat[2][: tb.N_STATS], stats)
+            np.testing.assert_array_equal(flat[2][tb.N_STATS :], levels)
+            got = (flat[3][0][:m], *(x[:k] for x in flat[3][1:]))
+            for g, want in zip(got, result, strict=True):
+                np.testing.assert_array_equal(g, want)
         touching += m > 0
     assert 0 < touching < 40
     assert compared[True] < compared[False]
