@@ -3,13 +3,16 @@
 A box row is ``(15,)`` float64, as :attr:`~engine.trees.views.TreeViews.boxes` writes them
 (body frame): centre (columns 0–2), three orthonormal unit axes (3–5, 6–8, 9–11) and the
 half-extents along them (12–14). The traversal places B's rows into A's frame once per node
-and query (:func:`place_row`), then :func:`separated` tests a node pair after its bounding
+and query (:func:`place_row`), then :func:`boxes_separated` tests a node pair after its bounding
 spheres have passed: two convex sets are disjoint by more than ``margin`` when some axis
 separates their projections by more than ``margin`` (the 15 axes of two boxes: 3 + 3 face
 normals and 9 edge cross products; a cross product of unit vectors is no longer than 1, so
 its unnormalised gap exceeding ``margin`` is a true gap of more than ``margin``).
 
-The traversal inlines both helpers (a call per node pair costs as much as the test). The
+The traversal splices the box test in at Numba-IR level (:func:`boxes_separated`, whose
+called form is :func:`separated`): LLVM kept the test a called function, and the call, with
+two arrays passed field by field, cost about as much as the test (inlined, near queries of
+icospheres 1.3 µs faster, BENCHMARKS.md, issue 15, tenth step). The
 bounds-only search (:func:`bounds_apart`) is compiled without fast-math and called, not
 inlined: one body, free of contraction wherever it lands, serves the host's early-out
 (:func:`~engine.kernels.collision.pair_query.roots_apart`) and the query kernel's own
@@ -23,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import BORROW, EXACT_BORROW, EXACT_JIT, JIT
+from engine.kernels.jit import BORROW, EXACT_BORROW, EXACT_JIT, INLINE, JIT
 
 BOX_COLUMNS = 15  # centre (3), axes (3 × 3, one per row), half-extents (3)
 TABLE_COLUMNS = 21  # a box (15), a sphere: centre (3), radius; first child, child count
@@ -55,6 +58,12 @@ def place_box(boxes_b, j, rotation, shift, placed_b, done):
 
 @njit(**BORROW)
 def separated(boxes_a, i, placed_b, j, margin):
+    """:func:`boxes_separated` as a called function (arguments as there)."""
+    return boxes_separated(boxes_a, i, placed_b, j, margin)
+
+
+@njit(**INLINE)
+def boxes_separated(boxes_a, i, placed_b, j, margin):
     """True when A's box row ``i`` of ``boxes_a (Na, 15)`` and B's placed row ``j`` of
     ``placed_b (Nb, 15)`` (both float64, A's frame) are apart by more than ``margin``
     along one of their 15 separating axes (``margin`` float64 ≥ 0; see the module). A's
