@@ -27,7 +27,16 @@ inlined into exactly one loop kernel.
 LLVM vectorises a pair loop only after proving (with runtime checks) that its
 stores do not overlap its ~44 input rows; its default limits on such checks
 (8 and 100) are far below that, so they are raised here, process-wide, before
-anything is compiled. The checks run once per loop, not per pair.
+anything is compiled. The checks run once per loop, not per pair, but they are
+hundreds of comparisons (each row of a 2-D array is its own pointer range), and
+LLVM runs a block of fewer than its vector step scalar: measured, the iterative
+kernel on 16 pairs took 963 ns (60 ns a pair) and on 32 pairs 1,092 ns.
+``DISTINCT`` is ``BORROW`` for block kernels whose array arguments never share
+memory that the kernel writes (every caller passes separate buffers, or disjoint
+rows of one): their pointers are marked ``noalias`` (Numba's ``noalias`` flag,
+which no decorator option sets, so :data:`NOALIAS` maps ``_noalias`` to it), LLVM
+vectorises without checks, and 16 pairs take 162 ns, 32 pairs 284 ns. Where this
+Numba cannot take the option, ``DISTINCT`` is plain ``BORROW``.
 
 Numba's on-disk cache is keyed on the timestamp of the file that defines a
 kernel, but these kernels inline helpers from sibling files: an edit there
@@ -76,6 +85,26 @@ EXACT_JIT = {**JIT, "fastmath": False}
 INLINE = {**JIT, "inline": "always"}
 BORROW = {**JIT, "_nrt": False}
 EXACT_BORROW = {**EXACT_JIT, "_nrt": False}
+
+
+def _noalias_option() -> dict:
+    """``{"_noalias": True}`` once Numba's CPU target maps that option to its ``noalias``
+    flag (the flag its parallel loops set on their own kernels), else ``{}``."""
+    try:
+        from numba.core.compiler import Flags
+        from numba.core.cpu import CPUTargetOptions
+        from numba.core.options import TargetOptions
+    except ImportError:  # pragma: no cover - another Numba layout
+        return {}
+    if not hasattr(Flags, "noalias"):  # pragma: no cover
+        return {}
+    if not hasattr(CPUTargetOptions, "_noalias"):
+        CPUTargetOptions._noalias = TargetOptions.Mapping("noalias")
+    return {"_noalias": True}
+
+
+NOALIAS = _noalias_option()
+DISTINCT = {**BORROW, **NOALIAS}
 
 
 @intrinsic

@@ -45,7 +45,7 @@ from engine.kernels.geometry.triangle_points import (
     point_rows,
     vertex_point,
 )
-from engine.kernels.jit import BORROW, INLINE, JIT, select, sqrt
+from engine.kernels.jit import BORROW, DISTINCT, INLINE, JIT, select, sqrt
 
 # np.int64 rather than int literals: a literal argument gives a callee another
 # specialisation (and another few seconds of compilation) than a variable does.
@@ -91,7 +91,7 @@ def _extent(f, i, one):
     return one / sqrt(min(f[9, i], min(f[10, i], f[11, i])))
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 def bound_rows(a, fa, i, b, fb, eps_i, eps_b, one, band_factor, margin):
     """``margin[j] = L − (ε + band)`` for pairs (i, j), L the centroid-axis lower bound.
 
@@ -117,7 +117,7 @@ def _longest_edge(v0, v1, v2):
     return sqrt(max(e1, max(e2, e3)))
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 def bound_paired(a, b, m, eps, one, band_factor, margin):
     """As :func:`bound_rows` for pairs (t, t) with contact distances ``eps[t]``.
 
@@ -136,7 +136,7 @@ def bound_paired(a, b, m, eps, one, band_factor, margin):
         margin[t] = low - (eps[t] + band)
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 def iterate_paired(a, fa, b, fb, m, iterations, one, band_factor, scratch):
     """Iterative kernel on pairs (t, t), ``0 ≤ t < m ≤ BLOCK``.
 

@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.geometry.triangle_exact import exact_pair
-from engine.kernels.jit import BORROW, INLINE, JIT, select, sqrt
+from engine.kernels.jit import BORROW, DISTINCT, INLINE, JIT, select, sqrt
 
 BLOCK = 256  # pairs per block of the batch kernels (and rows of :func:`point_rows`)
 
@@ -48,7 +48,7 @@ def _pair(a, i, b, j):
     )
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 def exact_paired(a, fa, b, fb, m, one, dist):
     """Exact distance ``dist[t]`` of pairs (t, t), ``0 ≤ t < m``.
 
@@ -64,7 +64,7 @@ def exact_paired(a, fa, b, fb, m, one, dist):
         dist[t] = sqrt(exact_pair(a0, a1, a2, _frame(fa, t), b0, b1, b2, _frame(fb, t), one)[0])
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 def exact_rows(a, fa, i, b, fb, one, dist):
     """Exact distance ``dist[j]`` of pairs (i, j) for every j."""
     for j in range(b.shape[1]):
@@ -72,7 +72,7 @@ def exact_rows(a, fa, i, b, fb, one, dist):
         dist[j] = sqrt(exact_pair(a0, a1, a2, _frame(fa, i), b0, b1, b2, _frame(fb, j), one)[0])
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 def exact_points(a, fa, b, fb, m, one, d, pax, pay, paz, pbx, pby, pbz):
     """Exact distance ``d[t]`` and closest points ``(pax, pay, paz)[t]`` on A and ``(pbx,
     pby, pbz)[t]`` on B (input frame) of pairs (t, t), ``0 ≤ t < m``: :func:`exact_point`'s
@@ -203,7 +203,7 @@ def vertex_point(a, i, b, j, one):
     return vertex_pair(a0, a1, a2, b0, b1, b2, one)
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 def vertex_points(a, b, m, one, d, pax, pay, paz, pbx, pby, pbz):
     """:func:`vertex_pair` of pairs (t, t), ``0 ≤ t < m``, vectorised; outputs as
     :func:`exact_points`' (``d[t] = −1``: refused, points then meaningless)."""
