@@ -9,10 +9,10 @@ separates their projections by more than ``margin`` (the 15 axes of two boxes: 3
 normals and 9 edge cross products; a cross product of unit vectors is no longer than 1, so
 its unnormalised gap exceeding ``margin`` is a true gap of more than ``margin``).
 
-The traversal splices the box test in at Numba-IR level (:func:`boxes_separated`, whose
-called form is :func:`separated`): LLVM kept the test a called function, and the call, with
-two arrays passed field by field, cost about as much as the test (inlined, near queries of
-icospheres 1.3 µs faster, BENCHMARKS.md, issue 15, tenth step). The
+The traversal has LLVM inline the box test (:func:`boxes_separated`, ``forceinline``: LLVM
+kept it a called function by its size, and the call, with two arrays passed field by field,
+cost about as much as the test; inlined, near queries of icospheres are 1.3 µs faster,
+BENCHMARKS.md, issue 15, tenth step); :func:`separated` is its called form. The
 bounds-only search (:func:`bounds_apart`) is compiled without fast-math and called, not
 inlined: one body, free of contraction wherever it lands, serves the host's early-out
 (:func:`~engine.kernels.collision.pair_query.roots_apart`) and the query kernel's own
@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import BORROW, EXACT_BORROW, EXACT_JIT, INLINE, JIT
+from engine.kernels.jit import BORROW, EXACT_BORROW, EXACT_JIT, JIT
 
 BOX_COLUMNS = 15  # centre (3), axes (3 × 3, one per row), half-extents (3)
 TABLE_COLUMNS = 21  # a box (15), a sphere: centre (3), radius; first child, child count
@@ -62,7 +62,7 @@ def separated(boxes_a, i, placed_b, j, margin):
     return boxes_separated(boxes_a, i, placed_b, j, margin)
 
 
-@njit(**INLINE)
+@njit(**BORROW, forceinline=True)
 def boxes_separated(boxes_a, i, placed_b, j, margin):
     """True when A's box row ``i`` of ``boxes_a (Na, 15)`` and B's placed row ``j`` of
     ``placed_b (Nb, 15)`` (both float64, A's frame) are apart by more than ``margin``
