@@ -89,10 +89,11 @@ def pair_query(
     ``bounds_apart``, at most ``SEARCH_BUDGET`` node pairs tested: the same outcome as
     :func:`roots_apart` with that margin) the result is the root pair pruned: ``f = −1``,
     nothing written, ``counters`` zero but for that pruned pair. That search runs only
-    when the traversal found no leaf pair in contact (a leaf pair in contact lies within
-    every bound that covers it, so the search cannot show those bodies apart), and not at
-    all for a negative ``bounds_margin`` (the host has run :func:`roots_apart`, which found
-    them not apart).
+    when the traversal found no leaf pair in contact and none whose distance, as the
+    traversal evaluated it, is within ``bounds_margin / 2`` of contact (every bound that
+    covers a leaf pair holds both leaves' ε-regions, so the search cannot show those
+    bodies apart), and not at all for a negative ``bounds_margin`` (the host has run
+    :func:`roots_apart`, which found them not apart).
     The arguments come in four groups: A's, B's (each fixed per tree, so the host keeps
     them as one tuple per tree), the poses and bounds margin, and the parameters.
 
@@ -114,7 +115,7 @@ def pair_query(
     margin = query_margin(extent_a, extent_b, shift, ulp)
     stats = counters[:N_STATS]
     levels = counters[N_STATS:]
-    depth, unfoldings, n, found, _, _ = traverse(
+    depth, unfoldings, n, found, _, _, closest = traverse(
         coords_a,
         frames_a,
         epsilon_a,
@@ -140,11 +141,14 @@ def pair_query(
         stats,
         levels,
     )
-    # the bounds-only search, after the traversal: a leaf pair in contact lies within every
-    # bound that covers it, so that search would have found it (not apart) and only a
-    # traversal that found nothing needs it
+    # the bounds-only search, after the traversal, only where it may find the bodies apart:
+    # every bound that covers a leaf pair holds both leaves' ε-regions, which are within
+    # d − ε of each other, so a pair in contact (n > 0), or one whose evaluated distance
+    # is within half the search's margin of contact (the rounding of d is far smaller),
+    # keeps that search from ending apart
     if (
         n == 0
+        and not closest <= 0.5 * bounds_margin
         and bounds_margin >= 0.0
         and table_a.shape[0] > 0
         and table_b.shape[0] > 0

@@ -71,7 +71,7 @@ def query_kernel(
     """
     coords_a, frames_a, epsilon_a, face_a, first_a, count_a, spheres_a, boxes_a = body_a
     master_coords, master_frames, epsilon_b, face_b, first_b, count_b, spheres_b, boxes_b = body_b
-    depth, unfoldings, n, found, near, near_distances = traverse(
+    depth, unfoldings, n, found, near, near_distances, _ = traverse(
         coords_a,
         frames_a,
         epsilon_a,
@@ -131,11 +131,16 @@ def traverse(
     """The pair-front search (arguments as :func:`query_kernel`'s, flattened, and each
     node's oriented bounding box ``boxes_* (N, 15)`` float64, body frame, as
     :mod:`~engine.kernels.collision.boxes` reads them; ``(0, 15)`` for none); returns
-    ``(depth, unfoldings, n, found, near, near_distances)``: the first ``n`` rows of
-    ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) are the leaf
-    pairs in contact (A's frame), ``near`` as in :func:`query_kernel` and
+    ``(depth, unfoldings, n, found, near, near_distances, closest)``: the first ``n`` rows
+    of ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) are the
+    leaf pairs in contact (A's frame), ``near`` as in :func:`query_kernel`,
     ``near_distances (len(near),)`` float64 the distance each near pair was recorded with
-    (outside ``ITERATIVE`` mode its exact distance, as a contact records it).
+    (outside ``ITERATIVE`` mode its exact distance, as a contact records it), and
+    ``closest`` (float64) the least ``d − ε`` over the leaf pairs evaluated (d the
+    distance of two points of the triangles: at least their distance, within rounding;
+    ε their contact distance, grown by ``2·inflate``; +∞ when none was), as the
+    workspace records it
+    (:func:`~engine.kernels.geometry.triangle_batch.workspace`).
 
     With ``inflate > 0`` each near leaf pair is evaluated once, at the grown ε; its
     contact at the true ε is decided from the values recorded (:func:`_at_true_epsilon`).
@@ -164,7 +169,7 @@ def traverse(
     ):  # before any other set-up
         stats[STAT_SPHERES] += 1
         none = result_buffers(0, coords_a)
-        return ZERO, ZERO, ZERO, none, np.zeros((0, 2), np.int64), np.zeros(0)
+        return ZERO, ZERO, ZERO, none, np.zeros((0, 2), np.int64), np.zeros(0), np.inf
     moved = np.zeros(nb, np.bool_)  # B's node moved, its ε set
     seen_a = np.zeros(na, np.bool_)  # A's node ε set
     coords_b = np.empty((nb, 9), dtype)
@@ -279,7 +284,10 @@ def traverse(
             master_coords, master_frames, to_move[:new], rotation, shift, coords_b, frames_b
         )
     found = _room(found, ZERO, nf)
+    least = buffers[0][11]  # lowered by the leaf pairs' evaluation alone
+    least[0] = np.inf
     n = listed_kernel(rm, eps_a, eps_b, finest, ZERO, nf, leaf_params, buffers, found, ZERO, stats)
+    closest = least[0]
     stats[STAT_SPHERES] += pruned
     near = np.empty((n, 2), np.int64)
     near_distances = np.empty(n)
@@ -298,7 +306,7 @@ def traverse(
             )
         else:
             n = _at_true_epsilon(rm, eps_a, eps_b, near, leaf_params, buffers, found, stats)
-    return depth, unfoldings, n, found, near, near_distances
+    return depth, unfoldings, n, found, near, near_distances, closest
 
 
 @njit(**JIT)

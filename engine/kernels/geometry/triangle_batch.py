@@ -269,9 +269,13 @@ def result_buffers(capacity, like):
 @njit(**JIT)
 def workspace(a):
     """Block buffers: gathered pairs (A, its frames, B, its frames), their original
-    indices and contact distances, scratch for the iterative kernel, distances, and two
+    indices and contact distances, scratch for the iterative kernel, distances, two
     :func:`point_rows` (``rows`` and ``final`` of
-    :func:`~engine.kernels.geometry.triangle_points.certified_points`)."""
+    :func:`~engine.kernels.geometry.triangle_points.certified_points`), and ``closest
+    (1,)`` float64, +∞: :func:`_resolve` lowers it to the least ``d − ε`` of the pairs it
+    resolves (d the iterative kernel's upper bound, a distance between two points of
+    the triangles, and the exact distance of every pair given points; ε the pair's
+    contact distance)."""
     f = a.dtype
     return (
         np.empty((9, BLOCK), f),
@@ -285,6 +289,7 @@ def workspace(a):
         np.empty(BLOCK, f),
         point_rows(a),
         point_rows(a),
+        np.full(1, np.inf),
     )
 
 
@@ -308,13 +313,15 @@ def _resolve(m, params, work, n, out, stats):
     distance is at most its ε (a pair the iterative kernel certifies in contact is kept
     whatever it is: it is ≤ the certified upper bound ≤ ε). The pairs that need points are
     moved to the front of the block, in order (``work``'s columns are overwritten), so
-    contacts are recorded in the order of the block.
+    contacts are recorded in the order of the block. ``work``'s ``closest`` is lowered
+    (see :func:`workspace`).
     """
     mode, iterations, rtol, one, band_factor = params
-    ga, gfa, gb, gfb, gi, gj, geps, scratch, dist, rows, final = work
+    ga, gfa, gb, gfb, gi, gj, geps, scratch, dist, rows, final, closest = work
     v0, v1, v2, v3, v4, v5, v6 = final
     out_i, out_j, out_d, out_p, out_q, out_s = out
     c = ZERO  # pairs that need points, moved to columns 0 … c − 1
+    least = closest[0]
     if mode == EXACT:
         c = m
         for k in range(m):
@@ -325,6 +332,7 @@ def _resolve(m, params, work, n, out, stats):
         for k in range(m):
             eps = geps[k]
             upper, low, band = scratch[6, k], scratch[7, k], scratch[8, k]
+            least = min(least, np.float64(upper) - np.float64(eps))
             st = classify(upper, low, eps, rtol * eps + band, band)
             if mode == HYBRID:
                 if st == NO_CONTACT:
@@ -347,11 +355,13 @@ def _resolve(m, params, work, n, out, stats):
     if c > 0:
         certified_points(ga, gfa, gb, gfb, c, one, final, rows)
         for k in range(c):
+            least = min(least, np.float64(v0[k]) - np.float64(geps[k]))
             if dist[k] != 0 or v0[k] <= geps[k]:
                 p, q = (v1[k], v2[k], v3[k]), (v4[k], v5[k], v6[k])
                 n = _record(
                     n, gi[k], gj[k], v0[k], p, q, CONTACT, out_i, out_j, out_d, out_p, out_q, out_s
                 )
+    closest[0] = least
     return n
 
 

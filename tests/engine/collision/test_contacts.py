@@ -343,6 +343,38 @@ def test_coherent_early_out_gives_the_same_result_either_way(pair):
                     assert ta.views.near_partner == id(tb.views)
 
 
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_bounds_search_is_skipped_only_where_it_cannot_end_apart(precision):
+    """Two icospheres whose closest leaves (vertex to vertex) are from 0 to 64 of the
+    early-out's slacks beyond their reach: no contact (but at 0 in float32), so the
+    kernel's bounds-only search decides between the traversal's result and the pruned
+    root pair, unless a leaf pair the traversal evaluated is within half a slack of
+    contact (then the bounds cannot show them apart and the search is skipped). With
+    the hint set or cleared, the query equals the kernel's own result and is the shared
+    FAR_APART exactly when ``far_apart`` settles it; both outcomes occur."""
+    mesh = shapes.icosphere(2)
+    tree = build_tree(mesh, epsilon=0.01)
+    reach = 2 * tree.leaf_epsilon
+    pa = Pose([0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    tip = float(np.asarray(mesh.vertices)[:, 0].max())  # a vertex on the x axis, (1, 0, 0)
+    seen = {True: 0, False: 0}
+    for excess in (0.0, 0.25, 0.45, 0.55, 1.0, 2.0, 4.0, 16.0, 64.0):
+        slack = contacts._far_slack(tree, pa, tree, Pose([2 * tip + reach, 0, 0], pa.orientation))[
+            1
+        ]
+        pb = Pose([2 * tip + reach + excess * slack, 0.0, 0.0], pa.orientation)
+        ref = contacts._search(tree, pa, tree, pb, "hybrid", True, precision, "pairs", 1)
+        apart = contacts.far_apart(tree, pa, tree, pb)
+        for hint in (0, id(tree.views), 0):
+            tree.views.near_partner = hint
+            got = find_contacts(tree, pa, tree, pb, precision=precision)
+            assert (got is contacts.FAR_APART) == apart
+            np.testing.assert_array_equal(got.pairs, ref.pairs)
+            assert got.stats == ref.stats
+        seen[apart] += 1
+    assert seen[True] > 0 and seen[False] > 0, seen
+
+
 def test_far_early_out_threshold_and_result():
     """Just above the spheres' threshold (the host's first test fires only at twice the
     slack, so here the look-ahead's sphere test settles it) the early-out returns the shared
