@@ -114,6 +114,8 @@ class ContactSet:
     normals : (k, 3) float64 — unit, from A to B
     overlaps : (k,) float64 — ε_a + ε_b − d, in [0, ε_a + ε_b]
     stats : ContactStats
+
+    A result without contacts holds shared read-only empty arrays.
     """
 
     pairs: np.ndarray
@@ -296,13 +298,17 @@ def _pair_query(
             "sphere_pruned": counts[tb.STAT_SPHERES],
         },
     )
+    if m == 0:  # no contact: the shared read-only empty arrays, as FAR_APART's
+        pairs, points, normals, overlaps = _NO_CONTACT
+    else:
+        pairs, points, normals, overlaps = pairs[:m], points[:k], normals[:k], overlaps[:k]
     return _made(
         ContactSet,
         {
-            "pairs": pairs[:m],
-            "points": points[:k],
-            "normals": normals[:k],
-            "overlaps": overlaps[:k],
+            "pairs": pairs,
+            "points": points,
+            "normals": normals,
+            "overlaps": overlaps,
             "stats": stats,
         },
     )
@@ -336,6 +342,9 @@ FAR_APART = ContactSet(
 pruned by its bounding spheres or boxes (the multiresolution search's own counters for
 that case).
 One shared object, its arrays read-only."""
+
+_NO_CONTACT = (FAR_APART.pairs, FAR_APART.points, FAR_APART.normals, FAR_APART.overlaps)
+"""The arrays of every result without contacts (read-only, shared)."""
 
 _FAR_SLACK = 2.0 * MARGIN_ULPS * ULP[np.float32] * 2.0  # twice the float32 query margin
 _SQRT3 = float(SQRT3)  # a Python float: numpy scalars' arithmetic costs ~40 ns an operation
