@@ -36,7 +36,9 @@ memory that the kernel writes (every caller passes separate buffers, or disjoint
 rows of one): their pointers are marked ``noalias`` (Numba's ``noalias`` flag,
 which no decorator option sets, so :data:`NOALIAS` maps ``_noalias`` to it), LLVM
 vectorises without checks, and 16 pairs take 162 ns, 32 pairs 284 ns. Where this
-Numba cannot take the option, ``DISTINCT`` is plain ``BORROW``.
+Numba cannot take the option, ``DISTINCT`` is plain ``BORROW``. The gathers stay
+``BORROW``: marked ``noalias`` they were vectorised with gather instructions, and a list
+of 1,296 pairs took 7 % longer.
 
 Numba's on-disk cache is keyed on the timestamp of the file that defines a
 kernel, but these kernels inline helpers from sibling files: an edit there

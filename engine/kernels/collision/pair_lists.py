@@ -30,7 +30,7 @@ from engine.kernels.geometry.triangle_points import (
     exact_points,
     vertex_points,
 )
-from engine.kernels.jit import BORROW, DISTINCT, HOST_AVX512, JIT
+from engine.kernels.jit import BORROW, HOST_AVX512, JIT
 
 SURE_BLOCK = 256 if HOST_AVX512 else 32
 """Pairs per call of the vertex–vertex certificate (and of ``exact_points`` for the pairs it
@@ -158,7 +158,7 @@ def _sure_contacts(rm, index_a, index_b, m, one, work, out, n):
     return n
 
 
-@njit(**DISTINCT)
+@njit(**BORROW)
 def _gather_coords(coords, index, t0, m, out):
     """``out[:, k] = coords[index[t0 + k]]``, ``k < m``: row-major ``(n, 9)`` coordinates
     into the columns of ``out (9, ≥ m)``, unrolled."""

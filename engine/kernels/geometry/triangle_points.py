@@ -250,7 +250,7 @@ def certified_points(a, fa, b, fb, m, one, final, rows):
             e += 1
 
 
-@njit(**DISTINCT)
+@njit(**BORROW)
 def gather_rows(coords, frames, idx, m, coords_out, frames_out):
     """``coords_out[:, k] = coords[idx[k]]``, ``frames_out[:, k] = frames[idx[k]]``,
     ``k < m``: a triangle's row-major coordinates (9) and frame (14), unrolled."""
@@ -262,7 +262,7 @@ def gather_rows(coords, frames, idx, m, coords_out, frames_out):
             frames_out[c, k] = frames[i, c]
 
 
-@njit(**DISTINCT)
+@njit(**BORROW)
 def copy_columns(src, t0, m, dst):
     """``dst[:, k] = src[:, t0 + k]`` for ``k < m`` (an explicit loop compiles faster
     than Numba's generic slice assignment)."""
@@ -271,7 +271,7 @@ def copy_columns(src, t0, m, dst):
             dst[c, k] = src[c, t0 + k]
 
 
-@njit(**DISTINCT)
+@njit(**BORROW)
 def gather_coords(src, pairs, side, t0, m, dst):
     """``dst[:, k] = src[pairs[t0 + k, side], :]``: coordinates, unrolled."""
     for k in range(m):
