@@ -9,10 +9,11 @@ separates their projections by more than ``margin`` (the 15 axes of two boxes: 3
 normals and 9 edge cross products; a cross product of unit vectors is no longer than 1, so
 its unnormalised gap exceeding ``margin`` is a true gap of more than ``margin``).
 
-The traversal has LLVM inline the box test (:func:`boxes_separated`, ``forceinline``: LLVM
-kept it a called function by its size, and the call, with two arrays passed field by field,
-cost about as much as the test; inlined, near queries of icospheres are 1.3 µs faster,
-BENCHMARKS.md, issue 15, tenth step); :func:`separated` is its called form. The
+The traversal has LLVM inline the box test (:func:`boxes_separated`) and :func:`place_row`
+(``forceinline``: LLVM kept them called functions by their size, and a call, with its
+arrays passed field by field, cost about as much as the work; inlined, near queries of
+icospheres are 1–3 µs faster, BENCHMARKS.md, issue 15, tenth step); :func:`separated` is
+the box test's called form. The
 bounds-only search (:func:`bounds_apart`) is compiled without fast-math and called, not
 inlined: one body, free of contraction wherever it lands, serves the host's early-out
 (:func:`~engine.kernels.collision.pair_query.roots_apart`) and the query kernel's own
@@ -33,7 +34,7 @@ TABLE_COLUMNS = 21  # a box (15), a sphere: centre (3), radius; first child, chi
 SEARCH_BUDGET = 256  # node pairs a bounds-only search tests before it gives up
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def place_row(boxes_b, j, rotation, shift, placed_b, done):
     """B's box row ``j`` of ``boxes_b (N, 15)`` float64 moved into A's frame by
     ``x ↦ rotation x + shift`` (``rotation (3, 3)``, ``shift (3,)`` float64), into
