@@ -105,7 +105,7 @@ def _dot(p, q):
     return p[0] * q[0] + p[1] * q[1] + p[2] * q[2]
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def _gap(a, i, c, u, v, t, hb):
     """:func:`box_gap` of A's node ``i`` and a box placed in A's frame: centre ``c``, unit
     axes ``u, v, t``, half-extents ``hb`` (tuples of 3)."""
@@ -161,7 +161,7 @@ def box_gap(a, i, b, j, r, s):
     return _gap(a, i, c, u, v, t, (b[j, HALF], b[j, HALF + 1], b[j, HALF + 2]))
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def place_box(b, j, r, s, placed, k):
     """Column ``k`` of ``placed (≥ N_PLACED, m)`` float64: B's node ``j`` box moved by ``x ↦
     R x + s`` (as :func:`box_gap` moves it): rows 0:3 centre, 3:12 the three axes, 12:15
@@ -224,7 +224,7 @@ def node_bound(a, i, b, j, r, s, best, margin):
     return max(sphere, box_gap(a, i, b, j, r, s))
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def place_node(b, j, r, s, placed, k):
     """Column ``k`` of ``placed (PLACED, m)``: B's node ``j`` moved into A's frame, its box
     (:func:`~engine.kernels.collision.distance_bounds.place_box`) then its sphere (centre,
@@ -248,7 +248,7 @@ def far_placed(a, i, placed, k, limit):
     return reach >= 0.0 and d2 > reach * reach, d2
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def bound_placed(a, i, placed, k, best, margin):
     """:func:`node_bound` for A's node ``i`` and the placed B node ``k``."""
     far, d2 = far_placed(a, i, placed, k, best + margin)
@@ -310,7 +310,7 @@ def child_bounds(a, i, placed, n, out):
         out[t] = max(max(gap, centres), sphere)
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def may_drop(a, i, b, j, r, s, limit):
     """Bound 3 of the internal pair (i, j) may exceed ``limit``: the nearest of the two
     node triangles' vertex pairs (an upper bound on their distance), less ``g_a + g_b``,

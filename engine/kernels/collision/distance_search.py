@@ -59,7 +59,9 @@ Measured on ``benchmarks/peers.py``, computing bound 3 lazily beat computing it 
 kept child pair (the previous search) on most near and overlapping cases; evaluating leaf
 pairs once (not refined, pushed back, then evaluated with points), skipping refinements
 that cannot drop a pair and moving B's nodes once per unfolding cut the far cases by
-10–25 %.
+10–25 %. The per-pair helpers LLVM kept as calls by their size (``place_node``, ``_gap``,
+``bound_placed``, ``may_drop``, ``_gather_b``: each call passes its arrays field by field)
+are ``forceinline``: far and near cases 5–17 % faster (BENCHMARKS.md, issue 15, tenth step).
 
 A pair is dropped only when a bound exceeds the best candidate by more than ``margin``
 (:func:`~engine.kernels.collision.batch.query_margin`: 256 ulp of the pair's scale, which
@@ -221,7 +223,7 @@ def _gather_a(prepared, i, k, ga, gfa):
         gfa[c, k] = prepared[i, FRAMES + c]
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def _gather_b(b, j, r, s, k, gb, gfb):
     """Column ``k`` of ``gb (9, m)``, ``gfb (14, m)``: B's node ``j`` moved into A's frame
     as :func:`~engine.kernels.collision.rigid.move_kernel` moves it, rounded to their dtype."""
