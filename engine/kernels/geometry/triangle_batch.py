@@ -365,7 +365,7 @@ def _resolve(m, params, work, n, out, stats):
     return n
 
 
-@njit(**BORROW)
+@njit(**BORROW, forceinline=True)
 def _move_column(ga, gfa, gb, gfb, gi, gj, geps, k, c):
     """Column ``k`` of a gathered block (both sides' coordinates and frames, indices,
     contact distance) into column ``c``."""
