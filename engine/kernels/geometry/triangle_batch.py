@@ -21,6 +21,10 @@ The form kernels (:func:`paired_kernel`, :func:`all_pairs_kernel`,
 :func:`listed_kernel`) work on a half-open range ``[start, stop)`` so that the
 host can split work across threads (every kernel releases the GIL).
 
+:func:`iterate_paired`, :func:`bound_paired` and :func:`bound_rows` are ``DISTINCT``
+(:mod:`engine.kernels.jit`): the arrays they write must share no memory with the arrays
+they read (separate buffers, or disjoint rows of one).
+
 Modes: ``EXACT`` (0), ``ITERATIVE`` (1), ``HYBRID`` (2). Status codes:
 ``NO_CONTACT`` (0), ``CONTACT`` (1), ``NOT_CONVERGED`` (2).
 """

@@ -9,6 +9,10 @@ A pair (i, j) is evaluated in a frame whose origin is vertex 0 of its A triangle
 It also holds the block gathers (:func:`gather_rows`, :func:`gather_coords`,
 :func:`copy_columns`; re-exported by ``triangle_batch``) and the vertex–vertex certificate
 (:func:`vertex_pair`): the points a contact records (:func:`certified_points`).
+
+:func:`exact_paired`, :func:`exact_rows`, :func:`exact_points` and :func:`vertex_points`
+are ``DISTINCT`` (:mod:`engine.kernels.jit`): the arrays they write must share no memory
+with the arrays they read (separate buffers, or disjoint rows of one).
 """
 
 from __future__ import annotations
