@@ -3,17 +3,16 @@
 A box row is ``(15,)`` float64, as :attr:`~engine.trees.views.TreeViews.boxes` writes them
 (body frame): centre (columns 0–2), three orthonormal unit axes (3–5, 6–8, 9–11) and the
 half-extents along them (12–14). The traversal places B's rows into A's frame once per node
-and query (:func:`place_row`), then :func:`boxes_separated` tests a node pair after its bounding
+and query (:func:`place_row`), then :func:`separated` tests a node pair after its bounding
 spheres have passed: two convex sets are disjoint by more than ``margin`` when some axis
 separates their projections by more than ``margin`` (the 15 axes of two boxes: 3 + 3 face
 normals and 9 edge cross products; a cross product of unit vectors is no longer than 1, so
 its unnormalised gap exceeding ``margin`` is a true gap of more than ``margin``).
 
-The traversal has LLVM inline the box test (:func:`boxes_separated`) and :func:`place_row`
-(``forceinline``: LLVM kept them called functions by their size, and a call, with its
-arrays passed field by field, cost about as much as the work; inlined, near queries of
-icospheres are 1–3 µs faster, BENCHMARKS.md, issue 15, tenth step); :func:`separated` is
-the box test's called form. The
+LLVM inlines both helpers wherever they are used (``forceinline``: by their size it had
+kept them called functions, and a call, with its arrays passed field by field, cost about
+as much as the work; inlined, near queries of icospheres are 1–3 µs faster, BENCHMARKS.md,
+issue 15, tenth step). The
 bounds-only search (:func:`bounds_apart`) is compiled without fast-math and called, not
 inlined: one body, free of contraction wherever it lands, serves the host's early-out
 (:func:`~engine.kernels.collision.pair_query.roots_apart`) and the query kernel's own
@@ -57,14 +56,8 @@ def place_box(boxes_b, j, rotation, shift, placed_b, done):
     place_row(boxes_b, j, rotation, shift, placed_b, done)
 
 
-@njit(**BORROW)
-def separated(boxes_a, i, placed_b, j, margin):
-    """:func:`boxes_separated` as a called function (arguments as there)."""
-    return boxes_separated(boxes_a, i, placed_b, j, margin)
-
-
 @njit(**BORROW, forceinline=True)
-def boxes_separated(boxes_a, i, placed_b, j, margin):
+def separated(boxes_a, i, placed_b, j, margin):
     """True when A's box row ``i`` of ``boxes_a (Na, 15)`` and B's placed row ``j`` of
     ``placed_b (Nb, 15)`` (both float64, A's frame) are apart by more than ``margin``
     along one of their 15 separating axes (``margin`` float64 ≥ 0; see the module). A's

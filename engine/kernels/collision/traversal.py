@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.collision.boxes import box_set_up, boxes_separated, place_row, separated
+from engine.kernels.collision.boxes import box_set_up, place_row, separated
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.geometry.triangle_batch import (
@@ -265,7 +265,7 @@ def traverse(
                     cb = keep_b[v]
                     if cross and _far(spheres_a, ca, centres_b, spheres_b, cb, reach):
                         continue
-                    if boxed and boxes_separated(boxes_a, ca, placed_b, cb, reach):
+                    if boxed and separated(boxes_a, ca, placed_b, cb, reach):
                         continue
                     following[r, 0], following[r, 1] = ca, cb
                     r += 1
