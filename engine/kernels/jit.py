@@ -40,6 +40,17 @@ Numba cannot take the option, ``DISTINCT`` is plain ``BORROW``. The gathers stay
 ``BORROW``: marked ``noalias`` they were vectorised with gather instructions, and a list
 of 1,296 pairs took 7 % longer.
 
+LLVM runs the pairs past the last full vector of a loop one at a time (its scalar
+remainder), so a block of 2 to 7 pairs on AVX-512 float64 is 2 to 7 scalar iterations:
+the iterative kernel took 141 ns on 2 pairs and 243 ns on 4, against 114 ns on 8. The
+block kernels that often see such blocks (the paired kernels of the traversal's levels
+and of ``mesh_distance``'s refinements, and ``child_bounds``) are :func:`tail_masked`:
+LLVM folds the remainder into masked vector lanes (its ``prefer-predicate-over-epilogue``
+option, set only while such a kernel is optimised), and 1 to 8 pairs take one vector
+iteration (111 ns). Long loops pay for the masks (the cull on 256 pairs: 545 → 620 ns), so
+the row kernels stay unmasked (``benchmarks/block_kernels.py``; BENCHMARKS.md, issue 15,
+eleventh step).
+
 Numba's on-disk cache is keyed on the timestamp of the file that defines a
 kernel, but these kernels inline helpers from sibling files: an edit there
 would leave stale machine code in use. The cache directory therefore carries
@@ -107,6 +118,54 @@ def _noalias_option() -> dict:
 
 NOALIAS = _noalias_option()
 DISTINCT = {**BORROW, **NOALIAS}
+
+_MASKED_NAMES: set[str] = set()
+_EPILOGUE = "--prefer-predicate-over-epilogue="
+
+
+def tail_masked(function):
+    """Mark a block kernel (apply under ``@njit``) whose loop runs on a few pairs at a time
+    (often fewer than a vector): LLVM vectorises its loops with masked (predicated) lanes
+    and no scalar remainder, so a block of 2 to 7 pairs takes one vector iteration instead
+    of 2 to 7 scalar ones. Only the marked kernels: long loops (the row kernels) run a few
+    per cent slower masked. The option applies while LLVM optimises the kernel's own code
+    (:func:`_install_tail_masking`); a Numba that does not offer that hook compiles the
+    kernel as before (same results: the lanes compute what the scalar loop computes)."""
+    _MASKED_NAMES.add(function.__qualname__)
+    return function
+
+
+def _install_tail_masking() -> None:
+    """Wrap Numba's per-function LLVM optimisation (``CPUCodeLibrary.add_llvm_module``
+    and ``finalize``, under Numba's global compiler lock) so that a library named after a
+    :func:`tail_masked` kernel is optimised with LLVM's ``prefer-predicate-over-epilogue``
+    option, and every other one without it."""
+    try:
+        from numba.core.codegen import CPUCodeLibrary
+    except ImportError:  # pragma: no cover - another Numba layout
+        return
+    if getattr(CPUCodeLibrary, "_mrdem_masked", False):
+        return
+
+    def wrapped(method):
+        def run(self, *args):
+            if self.name not in _MASKED_NAMES:
+                return method(self, *args)
+            llvm.set_option("mrdem", _EPILOGUE + "predicate-else-scalar-epilogue")
+            try:
+                return method(self, *args)
+            finally:
+                llvm.set_option("mrdem", _EPILOGUE + "scalar-epilogue")
+
+        return run
+
+    for name in ("add_llvm_module", "finalize"):
+        if hasattr(CPUCodeLibrary, name):
+            setattr(CPUCodeLibrary, name, wrapped(getattr(CPUCodeLibrary, name)))
+    CPUCodeLibrary._mrdem_masked = True
+
+
+_install_tail_masking()
 
 
 @intrinsic

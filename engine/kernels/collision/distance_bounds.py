@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import BORROW, JIT, select, sqrt
+from engine.kernels.jit import BORROW, JIT, select, sqrt, tail_masked
 
 # Columns of the node rows (:mod:`~engine.kernels.collision.distance_search` documents them).
 COORDS, FRAMES, CENTRE, RADIUS, GAP, FIRST, COUNT, FACE, EXTENT = 0, 9, 23, 26, 27, 28, 29, 30, 31
@@ -259,6 +259,7 @@ def bound_placed(a, i, placed, k, best, margin):
 
 
 @njit(**BORROW)
+@tail_masked
 def child_bounds(a, i, placed, n, out):
     """``out[t]`` (``0 ≤ t < n``): the larger of bounds 1 and 2 of A's node ``i`` and the
     placed B node ``t`` (:func:`place_node`), bound 2 with the gaps on one box's three axes

@@ -49,7 +49,7 @@ from engine.kernels.geometry.triangle_points import (
     point_rows,
     vertex_point,
 )
-from engine.kernels.jit import BORROW, DISTINCT, INLINE, JIT, select, sqrt
+from engine.kernels.jit import BORROW, DISTINCT, INLINE, JIT, select, sqrt, tail_masked
 
 # np.int64 rather than int literals: a literal argument gives a callee another
 # specialisation (and another few seconds of compilation) than a variable does.
@@ -122,6 +122,7 @@ def _longest_edge(v0, v1, v2):
 
 
 @njit(**DISTINCT)
+@tail_masked
 def bound_paired(a, b, m, eps, one, band_factor, margin):
     """As :func:`bound_rows` for pairs (t, t) with contact distances ``eps[t]``.
 
@@ -141,6 +142,7 @@ def bound_paired(a, b, m, eps, one, band_factor, margin):
 
 
 @njit(**DISTINCT)
+@tail_masked
 def iterate_paired(a, fa, b, fb, m, iterations, one, band_factor, scratch):
     """Iterative kernel on pairs (t, t), ``0 ≤ t < m ≤ BLOCK``.
 

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.geometry.triangle_exact import exact_pair
-from engine.kernels.jit import BORROW, DISTINCT, INLINE, JIT, select, sqrt
+from engine.kernels.jit import BORROW, DISTINCT, INLINE, JIT, select, sqrt, tail_masked
 
 BLOCK = 256  # pairs per block of the batch kernels (and rows of :func:`point_rows`)
 
@@ -53,6 +53,7 @@ def _pair(a, i, b, j):
 
 
 @njit(**DISTINCT)
+@tail_masked
 def exact_paired(a, fa, b, fb, m, one, dist):
     """Exact distance ``dist[t]`` of pairs (t, t), ``0 ≤ t < m``.
 
@@ -77,6 +78,7 @@ def exact_rows(a, fa, i, b, fb, one, dist):
 
 
 @njit(**DISTINCT)
+@tail_masked
 def exact_points(a, fa, b, fb, m, one, d, pax, pay, paz, pbx, pby, pbz):
     """Exact distance ``d[t]`` and closest points ``(pax, pay, paz)[t]`` on A and ``(pbx,
     pby, pbz)[t]`` on B (input frame) of pairs (t, t), ``0 ≤ t < m``: :func:`exact_point`'s
@@ -208,6 +210,7 @@ def vertex_point(a, i, b, j, one):
 
 
 @njit(**DISTINCT)
+@tail_masked
 def vertex_points(a, b, m, one, d, pax, pay, paz, pbx, pby, pbz):
     """:func:`vertex_pair` of pairs (t, t), ``0 ≤ t < m``, vectorised; outputs as
     :func:`exact_points`' (``d[t] = −1``: refused, points then meaningless)."""

@@ -8,6 +8,8 @@ import shutil
 from pathlib import Path
 
 import numba
+import numpy as np
+import pytest
 
 from engine.kernels import jit
 
@@ -50,3 +52,32 @@ def test_moving_or_adding_a_kernel_file_changes_the_hash(tmp_path):
     assert jit.source_hash(root) == original
     (root / "dynamics" / "extra.py").write_text("X = 1\n")
     assert jit.source_hash(root) != original
+
+
+def test_only_tail_masked_kernels_run_their_last_lanes_masked():
+    """A ``tail_masked`` loop is compiled with masked (predicated) vector lanes and no
+    scalar remainder; the same loop unmarked, compiled right after, keeps LLVM's scalar
+    remainder (the option is set for the marked kernel's optimisation only). AVX-512
+    hosts: mask registers make the masked lanes visible in the assembly."""
+    if not jit.HOST_AVX512:
+        pytest.skip("masked lanes are told apart by AVX-512 mask registers")
+
+    def masked_scale(x, m, out):
+        for t in range(m):
+            out[t] = 2.5 * x[t]
+
+    def plain_scale(x, m, out):
+        for t in range(m):
+            out[t] = 2.5 * x[t]
+
+    signature = (numba.float64[::1], numba.int64, numba.float64[::1])
+    options = {**jit.DISTINCT, "cache": False}
+    masked = numba.njit(signature, **options)(jit.tail_masked(masked_scale))
+    plain = numba.njit(signature, **options)(plain_scale)
+    masked_asm = masked.inspect_asm(masked.signatures[0])
+    plain_asm = plain.inspect_asm(plain.signatures[0])
+    assert "{%k" in masked_asm and "vmulsd" not in masked_asm
+    assert "vmulsd" in plain_asm
+    x, out = np.arange(5.0), np.zeros(5)
+    masked(x, 5, out)
+    np.testing.assert_array_equal(out, 2.5 * x)

@@ -52,3 +52,28 @@ def test_vectorised_points_are_the_scalar_points(precision):
         got = np.array([r[:m] for r in rows])
         np.testing.assert_array_equal(got, want)
         assert (want[0] == 0).any() and (want[0] > 0).any()
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_short_blocks_are_the_scalar_values(precision):
+    """Blocks of 1 to 17 pairs, exactly as wide as the block (``tail_masked`` kernels run
+    them as masked vector lanes, with no scalar remainder, and read nothing past ``m``):
+    ``exact_paired``'s distances and ``exact_points``' values are the scalar
+    ``exact_point``'s, bit for bit."""
+    a, b = _pairs(5, 4 * 17)
+    sa, sb = TriangleSet(a, precision=precision), TriangleSet(b, precision=precision)
+    one = np.dtype(precision).type(1)
+    rows = tp.point_rows(sa.coords)
+    for m in range(1, 18):
+        t0 = (3 * m) % (len(a) - m)
+        block = [
+            np.ascontiguousarray(x[:, t0 : t0 + m])
+            for x in (sa.coords, sa.frames, sb.coords, sb.frames)
+        ]
+        want = np.empty((7, m), sa.coords.dtype)
+        _scalar(*block, m, one, want)
+        dist = np.empty(m, sa.coords.dtype)
+        tp.exact_paired(*block, m, one, dist)
+        np.testing.assert_array_equal(dist, want[0])
+        tp.exact_points(*block, m, one, *rows)
+        np.testing.assert_array_equal(np.array([r[:m] for r in rows]), want)
