@@ -21,7 +21,8 @@ the gap of two boxes projected on any axis is a lower bound too.
 
 **Search** (one call of :func:`~engine.kernels.collision.distance_search.distance_kernel`,
 whose module documents it): a greedy descent gives a first upper bound; then a best-first
-search over a heap of node pairs keyed on their lower bound: child pairs get the cheap
+search over node pairs keyed on their lower bound (a heap; a stack, depth first, for
+those whose bound is ≤ 0): child pairs get the cheap
 sphere and box bounds when their parent unfolds, and the exact distance of the two node
 triangles less their g only when they reach the top of the heap (vectorised over up to 8
 pairs); leaf pairs at the top are evaluated with the exact kernel the same way (in
@@ -41,6 +42,7 @@ the exact kernel over every face pair (the tests compare it with every face pair
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -59,26 +61,42 @@ class MeshDistance:
 
     distance : float — minimum Euclidean distance between the triangles of A and of B
         (0 when they intersect or touch), computed in the query precision
-    faces : (2,) int64 — (face of A, face of B) attaining it
-    point_a, point_b : (3,) float64 — closest points on those faces, world frame
+    face_a, face_b : int — the face of A and the face of B attaining it
+    closest_points : (2, 3) float64 — the closest points on those faces (A's, then B's),
+        world frame
+    faces : (2,) int64 — ``(face_a, face_b)`` (made at first use)
+    point_a, point_b : (3,) float64 — the rows of ``closest_points`` (made at first use)
     node_pairs : int — node pairs bounded (the roots', and every child pair of an
         unfolded pair)
     probes : int — leaf pairs whose exact distance was evaluated
     rounds : int — node pairs unfolded
-    largest_front : int — largest number of node pairs waiting in the search's heap
+    largest_front : int — largest number of node pairs waiting in the search's heap and stack
     sphere_pruned : int — child pairs dropped by their sphere or box bound, before any
         triangle distance
     """
 
     distance: float
-    faces: np.ndarray
-    point_a: np.ndarray
-    point_b: np.ndarray
+    face_a: int
+    face_b: int
+    closest_points: np.ndarray
     node_pairs: int
     probes: int
     rounds: int
     largest_front: int
     sphere_pruned: int
+
+    # views made at first use, not by every query (an array and two views: 0.2 µs)
+    @cached_property
+    def faces(self) -> np.ndarray:
+        return np.array((self.face_a, self.face_b), np.int64)
+
+    @cached_property
+    def point_a(self) -> np.ndarray:
+        return self.closest_points[0]
+
+    @cached_property
+    def point_b(self) -> np.ndarray:
+        return self.closest_points[1]
 
 
 def mesh_distance(
@@ -105,23 +123,22 @@ def mesh_distance(
     dtype = check_precision(precision)
     rows_a, rows_b = tree_a.views.distance_rows, tree_b.views.distance_rows
     prepared_a = rows_a if dtype is np.float64 else tree_a.views.prepared_rows(precision)
-    # the kernel writes the faces and points into arrays allocated here, and returns
-    # scalars only: three arrays built from returned tuples cost 1.2 µs, this 0.5 µs
-    faces, points = np.empty(2, np.int64), np.empty(6)
+    # the kernel writes the points into an array allocated here, and returns scalars
+    # only: three arrays built from returned tuples cost 1.2 µs, this 0.3 µs
+    points = np.empty((2, 3))
     found = ds.distance_kernel(
         prepared_a, rows_a, rows_b,
-        pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation,
-        faces, points,
+        pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation, points,
     )  # fmt: skip
-    distance, pairs, probes, rounds, largest, pruned = found
+    distance, face_a, face_b, pairs, probes, rounds, largest, pruned = found
     # the frozen dataclass's __init__ sets each field through object.__setattr__ (1.4 µs
     # of a ~6 µs call); the same fields stored into the new instance's __dict__: 0.5 µs
     result = _new(MeshDistance)
     fields = result.__dict__
     fields["distance"] = distance
-    fields["faces"] = faces
-    fields["point_a"] = points[:3]
-    fields["point_b"] = points[3:]
+    fields["face_a"] = face_a
+    fields["face_b"] = face_b
+    fields["closest_points"] = points
     fields["node_pairs"] = pairs
     fields["probes"] = probes
     fields["rounds"] = rounds

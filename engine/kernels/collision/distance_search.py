@@ -24,12 +24,13 @@ Bounds 1 and 2 are cheap (a few dozen flops); 3 is an exact triangle distance, s
 computed lazily: only for pairs that reach the top of the heap, a block at a time.
 
 **Search.** A greedy descent (the child with the smallest sphere bound, down to a leaf
-pair) gives a first upper bound: the best distance; when it finds no crossing pair and
-the root boxes overlap, a second descent guided by the larger of bounds 1 and 2 (it
-finds a crossing pair of overlapping bodies far more often) may lower it. A binary heap
-holds node pairs keyed on their lower bound clamped at 0, each marked *refined* once it
-has bound 3; ties pop the most recently pushed first, so that while bounds are ≤ 0 the
-search runs depth first, nearest child first, towards a crossing pair. The top pair is
+pair) gives a first upper bound: the best distance. Node pairs wait keyed on their lower
+bound clamped at 0, each marked *refined* once it has bound 3: those with a positive key
+in a binary heap, those with key 0 on a stack (pushed in entry order, so that the last
+pushed pops first: while bounds are ≤ 0 the search runs depth first, nearest child
+first, towards a crossing pair). The *top* pair is the stack's while it holds any (a key
+of 0 is the least), else the heap's: the same order as one heap with ties popping the
+latest entry first, without sifting entries tied at 0 through the heap. The top pair is
 looked at; if its bound, less the rounding margin, exceeds the best distance the search
 ends (every other bound is at least as large). Else:
 
@@ -44,7 +45,8 @@ ends (every other bound is at least as large). Else:
   unfolding, ``place_node``; with at least ``WIDE`` of them, the bounds of each A node
   against all of them in one vectorised loop, ``child_bounds``: helpers of
   :mod:`~engine.kernels.collision.distance_bounds`), and those kept are pushed
-  unrefined, the largest bound first.
+  unrefined: those with a positive bound onto the heap as they come, then those with a
+  bound ≤ 0 onto the stack, sorted, the largest bound first.
 
 The closest points are computed once, for the pair found
 (:func:`~engine.kernels.geometry.triangle_points.exact_point`).
@@ -62,6 +64,13 @@ that cannot drop a pair and moving B's nodes once per unfolding cut the far case
 10–25 %. The per-pair helpers LLVM kept as calls by their size (``place_node``, ``_gap``,
 ``bound_placed``, ``may_drop``, ``_gather_b``: each call passes its arrays field by field)
 are ``forceinline``: far and near cases 5–17 % faster (BENCHMARKS.md, issue 15, tenth step).
+A second greedy descent guided by the box bounds, once run when the first found no
+crossing of overlapping roots, is gone: on the peers' 40 poses it cost more where it
+failed (can × milk overlapping: 15 %) than it saved where it found the crossing
+(icospheres 320 at −0.01: 0.62 → 0.83 of Coal's time), and the geometric mean of the
+ratios fell 5 % (issue 15, eleventh step). ``exact_paired`` is
+:func:`~engine.kernels.jit.tail_masked`: a refinement of 2 to 8 pairs is one vector
+iteration.
 
 A pair is dropped only when a bound exceeds the best candidate by more than ``margin``
 (:func:`~engine.kernels.collision.batch.query_margin`: 256 ulp of the pair's scale, which
@@ -119,7 +128,8 @@ from engine.kernels.jit import BORROW, EXACT_BORROW, JIT
 
 N_COLUMNS = BOX + N_BOX
 # Fields of the tuple returned by :func:`distance_kernel`.
-OUT_DISTANCE, OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED, OUT_LARGEST, OUT_PRUNED = range(6)
+OUT_DISTANCE, OUT_FACE_A, OUT_FACE_B, OUT_PAIRS, OUT_EXACT, OUT_UNFOLDED = range(6)
+OUT_LARGEST, OUT_PRUNED = 6, 7
 HEAP_START = 256  # initial capacity of the heap (doubled when full)
 CHILDREN_START = 64  # initial capacity of an unfolded pair's child pairs (grown when needed)
 BOTH = 0.5  # unfold both nodes of a pair when their spheres are this close in size
@@ -136,11 +146,11 @@ def _gathered(m, dtype):
 
 @njit(**JIT)
 def _grown(key, ints, need):
-    """Copies of the heap's ``key (n,)`` float64 and ``ints (4, n)`` int64 with room for
+    """Copies of the heap's ``key (n,)`` float64 and ``ints (5, n)`` int64 with room for
     ``2 need > n`` entries."""
     out_key = np.empty(2 * need)
     out_key[: key.shape[0]] = key
-    out_ints = np.empty((4, 2 * need), np.int64)
+    out_ints = np.empty((5, 2 * need), np.int64)
     out_ints[:, : ints.shape[1]] = ints
     return out_key, out_ints
 
@@ -278,8 +288,9 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     exact, unfolded, largest, pruned)``."""
     pairs = exact = unfolded = pruned = ZERO
     key = np.empty(HEAP_START)
-    ints = np.empty((4, HEAP_START), np.int64)  # per entry: A's node, B's node, refined; heap
-    entry_a, entry_b, refined, heap = ints[0], ints[1], ints[2], ints[3]
+    # per entry: A's node, B's node, refined; the heap; the stack
+    ints = np.empty((5, HEAP_START), np.int64)
+    entry_a, entry_b, refined, heap, stack = ints[0], ints[1], ints[2], ints[3], ints[4]
     ga, gfa, gb, gfb, dist = _gathered(POPS, prepared_a.dtype)
     batch = np.empty(POPS, np.int64)  # the entries refined together
     child_low = np.empty(CHILDREN_START)  # child pairs of an unfolded pair: bound, A's, B's
@@ -289,11 +300,14 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     lows = np.empty(9)  # bounds of one A child against them
     key[0] = max(node_bound(a, ZERO, b, ZERO, r, s, np.inf, margin), 0.0)
     entry_a[0], entry_b[0], refined[0] = 0, 0, 0
-    entries = size = ZERO
-    size = _push(heap, size, key, ZERO)
+    entries = size = depth = ZERO
+    if key[0] > 0.0:
+        size = _push(heap, size, key, ZERO)
+    else:
+        stack[0], depth = 0, 1
     pairs, largest = ZERO + 1, ZERO + 1
-    while size > 0 and best > 0.0:
-        e = heap[0]
+    while (depth > 0 or size > 0) and best > 0.0:
+        e = stack[depth - 1] if depth > 0 else heap[0]
         if key[e] - margin > best:
             break
         i, j = entry_a[e], entry_b[e]
@@ -305,8 +319,8 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
             # bound 3 for up to POPS unrefined pairs from the top; a leaf pair is then a
             # candidate, any other pushed back with its new key or dropped
             m = 0
-            while size > 0 and m < POPS:
-                e = heap[0]
+            while (depth > 0 or size > 0) and m < POPS:
+                e = stack[depth - 1] if depth > 0 else heap[0]
                 i, j = entry_a[e], entry_b[e]
                 if key[e] - margin > best or refined[e] != 0:
                     break
@@ -316,7 +330,10 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                     if m > 0 and not may_drop(a, i, b, j, r, s, best + margin):
                         refined[e] = 1
                         break
-                size = _pop(heap, size, key)
+                if depth > 0:
+                    depth -= 1
+                else:
+                    size = _pop(heap, size, key)
                 _gather_a(prepared_a, i, m, ga, gfa)
                 _gather_b(b, j, r, s, m, gb, gfb)
                 batch[m] = e
@@ -334,12 +351,15 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                 low = max(key[e], d - a[i, GAP] - b[j, GAP])
                 if low - margin > best:
                     continue
-                key[e], refined[e] = max(low, 0.0), 1
+                key[e], refined[e] = low, 1  # (low ≥ the key popped, > 0)
                 size = _push(heap, size, key, e)
             continue
         # unfold the pair (never a leaf pair: those are candidates once refined); its child
         # pairs get bounds 1 and 2 and are pushed unrefined, the largest bound first
-        size = _pop(heap, size, key)
+        if depth > 0:
+            depth -= 1
+        else:
+            size = _pop(heap, size, key)
         unfolded += 1
         first_a, count_a, first_b, count_b = _unfolded(a, i, b, j)
         count = count_a * count_b
@@ -376,7 +396,13 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
             for t in range(count_b):
                 keep[1, kept_b] = t
                 kept_b += 1
-        kept = 0  # the survivors, sorted by bound, the largest first
+        if entries + 1 + count > key.shape[0]:
+            key, ints = _grown(key, ints, entries + 1 + count)
+            entry_a, entry_b, refined, heap, stack = ints[0], ints[1], ints[2], ints[3], ints[4]
+        # survivors with a positive bound are pushed as they come (their keys order them);
+        # those with a bound ≤ 0 (keys tied at 0: the last pushed pops first) are sorted,
+        # the largest bound first, and pushed after them
+        kept = 0
         wide = count_b >= WIDE
         for ta in range(kept_a):
             ci = keep[0, ta]
@@ -392,6 +418,12 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                     pruned += 1
                     continue
                 cj = first_b + t
+                if low > 0.0:
+                    entries += 1
+                    key[entries] = low
+                    entry_a[entries], entry_b[entries], refined[entries] = ci, cj, 0
+                    size = _push(heap, size, key, entries)
+                    continue
                 u = kept
                 while u > 0 and child_low[u - 1] < low:
                     child_low[u] = child_low[u - 1]
@@ -399,34 +431,30 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                     u -= 1
                 child_low[u], child[0, u], child[1, u] = low, ci, cj
                 kept += 1
-        if entries + 1 + kept > key.shape[0]:
-            key, ints = _grown(key, ints, entries + 1 + kept)
-            entry_a, entry_b, refined, heap = ints[0], ints[1], ints[2], ints[3]
         for t in range(kept):
             entries += 1
-            key[entries] = max(child_low[t], 0.0)
+            key[entries] = 0.0
             entry_a[entries], entry_b[entries], refined[entries] = child[0, t], child[1, t], 0
-            size = _push(heap, size, key, entries)
-        largest = max(largest, size)
+            stack[depth] = entries
+            depth += 1
+        largest = max(largest, size + depth)
     return best, best_i, best_j, pairs, exact, unfolded, largest, pruned
 
 
 @njit(**JIT)
-def distance_kernel(
-    prepared_a, a, b, position_a, orientation_a, position_b, orientation_b, faces, points
-):
+def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, orientation_b, points):
     """Minimum distance between body A (node rows ``a``, its triangles in the query dtype
     ``prepared_a`` (float32 or float64); see the module docstring) at ``position_a (3,)``,
     ``orientation_a (4,)`` (unit quaternion w, x, y, z) and body B (``b``) at
     ``position_b``, ``orientation_b`` (float64).
 
-    Writes ``faces (2,)`` int64: the faces of A and of B attaining the distance, and
-    ``points (6,)`` float64: the closest points on A then on B, world frame (outputs the
-    host allocates: a returned tuple of arrays or of nested tuples costs more to box).
-    Returns a tuple of scalars (fields ``OUT_*``): the distance (float64, computed in the
-    query dtype), then int64 counters: node pairs bounded (the root's and every child
-    pair's), exact distances of leaf pairs evaluated, pairs unfolded, the largest heap,
-    child pairs dropped by their sphere or box bound.
+    Writes ``points (2, 3)`` float64: the closest points on A then on B, world frame (an
+    output the host allocates: a returned tuple of arrays or of nested tuples costs more
+    to box). Returns a tuple of scalars (fields ``OUT_*``): the distance (float64, computed
+    in the query dtype), the faces of A and of B attaining it, then int64 counters: node
+    pairs bounded (the root's and every child pair's), exact distances of leaf pairs
+    evaluated, pairs unfolded, the largest front (heap and stack), child pairs dropped by
+    their sphere or box bound.
     """
     one = np.ones(1, prepared_a.dtype)[0]
     ulp = np.float64(np.nextafter(one, one + one) - one)  # the query dtype's epsilon
@@ -442,7 +470,7 @@ def distance_kernel(
     # with the smallest box bound): a first upper bound
     best, best_i, best_j = np.inf, ZERO, ZERO
     exact = ZERO
-    for guide in range(2):
+    for guide in range(1):
         if guide == 1 and not (best > 0.0 and box_gap(a, ZERO, b, ZERO, r, s) <= 0.0):
             break
         i, j = ZERO, ZERO
@@ -481,9 +509,9 @@ def distance_kernel(
     _gather_a(prepared_a, best_i, ZERO, ga, gfa)
     _gather_b(b, best_j, r, s, ZERO, gb, gfb)
     d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
-    faces[0], faces[1] = np.int64(a[best_i, FACE]), np.int64(b[best_j, FACE])
     pa = np.float64(p[0]), np.float64(p[1]), np.float64(p[2])
     pb = np.float64(q[0]), np.float64(q[1]), np.float64(q[2])
-    points[0], points[1], points[2] = _to_world(ra, position_a, pa)
-    points[3], points[4], points[5] = _to_world(ra, position_a, pb)
-    return best, pairs, exact, unfolded, largest, pruned
+    points[0, 0], points[0, 1], points[0, 2] = _to_world(ra, position_a, pa)
+    points[1, 0], points[1, 1], points[1, 2] = _to_world(ra, position_a, pb)
+    face_a, face_b = np.int64(a[best_i, FACE]), np.int64(b[best_j, FACE])
+    return best, face_a, face_b, pairs, exact, unfolded, largest, pruned

@@ -132,6 +132,9 @@ def check_against_oracle(name_a, pose_a, name_b, pose_b, precision="float64") ->
     assert isinstance(result, MeshDistance)
     assert result.faces.dtype == np.int64 and result.faces.shape == (2,)
     assert result.point_a.shape == result.point_b.shape == (3,)
+    assert result.faces.tolist() == [result.face_a, result.face_b]
+    np.testing.assert_array_equal(result.closest_points, [result.point_a, result.point_b])
+    assert result.point_a is result.point_a  # made once, at first use
     fa, fb = result.faces
     exact = frame_oracle(name_a, pose_a, name_b, pose_b, precision)
     assert result.distance == float(exact.min()), (result.distance, exact.min())
