@@ -67,8 +67,8 @@ are ``forceinline``: far and near cases 5–17 % faster (BENCHMARKS.md, issue 15
 A second greedy descent guided by the box bounds, once run when the first found no
 crossing of overlapping roots, is gone: on the peers' 40 poses it cost more where it
 failed (can × milk overlapping: 15 %) than it saved where it found the crossing
-(icospheres 320 at −0.01: 0.62 → 0.83 of Coal's time), and the geometric mean of the
-ratios fell 5 % (issue 15, eleventh step). ``exact_paired`` is
+(icospheres 320 at −0.01: 0.62 → 0.76–0.83 of Coal's time), and the geometric mean of the
+40 ratios fell 1–3 % (issue 15, eleventh step). ``exact_paired`` is
 :func:`~engine.kernels.jit.tail_masked`: a refinement of 2 to 8 pairs is one vector
 iteration.
 
