@@ -48,8 +48,11 @@ ends (every other bound is at least as large). Else:
   unrefined: those with a positive bound onto the heap as they come, then those with a
   bound ≤ 0 onto the stack, sorted, the largest bound first.
 
-The closest points are computed once, for the pair found
-(:func:`~engine.kernels.geometry.triangle_points.exact_point`).
+The descent's pair is evaluated with
+:func:`~engine.kernels.geometry.triangle_points.exact_point` (distance and closest points);
+when the search finds a closer pair, that pair's closest points are computed once, at the
+end. (Where the descent's pair is the answer, a query computes one exact distance less:
+icospheres 80 at −0.01 in 2.2 µs instead of 2.5.)
 
 A pair unfolds its node with the larger sphere (never a leaf), and the other node too if
 it is a surrogate with a sphere at least ``BOTH`` times as large; when both unfold, each
@@ -113,7 +116,6 @@ from engine.kernels.collision.distance_bounds import (  # noqa: F401 (columns re
     RADIUS,
     WIDE,
     bound_placed,
-    box_gap,
     child_bounds,
     far_placed,
     may_drop,
@@ -465,38 +467,29 @@ def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, ori
     s = (shift[0], shift[1], shift[2])
     ga, gfa, gb, gfb, dist = _gathered(1, prepared_a.dtype)  # one pair, for the descents
 
-    # greedy descents (the larger sphere unfolds, to the child with the smallest sphere
-    # bound; then, if that found no crossing and the root boxes overlap, to the child
-    # with the smallest box bound): a first upper bound
-    best, best_i, best_j = np.inf, ZERO, ZERO
-    exact = ZERO
-    for guide in range(1):
-        if guide == 1 and not (best > 0.0 and box_gap(a, ZERO, b, ZERO, r, s) <= 0.0):
-            break
-        i, j = ZERO, ZERO
-        while a[i, COUNT] > 0 or b[j, COUNT] > 0:
-            split = _split_a(a[i, COUNT], a[i, RADIUS], b[j, COUNT], b[j, RADIUS])
-            first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
-            count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
-            pick, low = first, np.inf
-            for c in range(first, first + count):
-                ci, cj = (c, j) if split else (i, c)
-                bound = sphere_bound(a, ci, b, cj, r, s)
-                if guide == 1:
-                    bound = max(bound, box_gap(a, ci, b, cj, r, s))
-                if bound < low:
-                    pick, low = c, bound
-            if split:
-                i = pick
-            else:
-                j = pick
-        _gather_a(prepared_a, i, 0, ga, gfa)
-        _gather_b(b, j, r, s, 0, gb, gfb)
-        exact_paired(ga, gfa, gb, gfb, ZERO + 1, one, dist)  # (a literal 1: another compile)
-        exact += 1
-        d = np.float64(dist[0])
-        if d < best:
-            best, best_i, best_j = d, i, j
+    # a greedy descent (the larger sphere unfolds, to the child with the smallest sphere
+    # bound): a first upper bound, its pair's closest points kept
+    i, j = ZERO, ZERO
+    while a[i, COUNT] > 0 or b[j, COUNT] > 0:
+        split = _split_a(a[i, COUNT], a[i, RADIUS], b[j, COUNT], b[j, RADIUS])
+        first = np.int64(a[i, FIRST]) if split else np.int64(b[j, FIRST])
+        count = np.int64(a[i, COUNT]) if split else np.int64(b[j, COUNT])
+        pick, low = first, np.inf
+        for c in range(first, first + count):
+            ci, cj = (c, j) if split else (i, c)
+            bound = sphere_bound(a, ci, b, cj, r, s)
+            if bound < low:
+                pick, low = c, bound
+        if split:
+            i = pick
+        else:
+            j = pick
+    # (gathered: exact_point's C-layout, int64 specialisation, the one the flat search
+    # compiles; its distance is exact_paired's, bit for bit)
+    _gather_a(prepared_a, i, ZERO, ga, gfa)
+    _gather_b(b, j, r, s, ZERO, gb, gfb)
+    d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
+    best, best_i, best_j, exact = np.float64(d), i, j, ZERO + 1
 
     pairs, unfolded, largest, pruned = ZERO + 1, ZERO, ZERO, ZERO  # the roots' pair
     if best > 0.0 and (a[0, COUNT] > 0 or b[0, COUNT] > 0):
@@ -504,11 +497,10 @@ def distance_kernel(prepared_a, a, b, position_a, orientation_a, position_b, ori
         best, best_i, best_j, pairs, searched, unfolded, largest, pruned = found
         exact += searched
 
-    # the closest points of the pair found (gathered: exact_point's C-layout, int64
-    # specialisation, the one the flat search compiles)
-    _gather_a(prepared_a, best_i, ZERO, ga, gfa)
-    _gather_b(b, best_j, r, s, ZERO, gb, gfb)
-    d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
+    if best_i != i or best_j != j:  # the search found a closer pair: its closest points
+        _gather_a(prepared_a, best_i, ZERO, ga, gfa)
+        _gather_b(b, best_j, r, s, ZERO, gb, gfb)
+        d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
     pa = np.float64(p[0]), np.float64(p[1]), np.float64(p[2])
     pb = np.float64(q[0]), np.float64(q[1]), np.float64(q[2])
     points[0, 0], points[0, 1], points[0, 2] = _to_world(ra, position_a, pa)
