@@ -386,7 +386,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                 keep[0, kept_a] = ci
                 kept_a += 1
             for t in range(count_b):
-                if sphere_far(a, i, b, first_b + t, r, s, limit)[0]:
+                if far_placed(a, i, placed, t, limit)[0]:  # (B's child t placed above)
                     pruned += kept_a
                     continue
                 keep[1, kept_b] = t
