@@ -46,7 +46,10 @@ ends (every other bound is at least as large). Else:
   against all of them in one vectorised loop, ``child_bounds``: helpers of
   :mod:`~engine.kernels.collision.distance_bounds`), and those kept are pushed
   unrefined: those with a positive bound onto the heap as they come, then those with a
-  bound ≤ 0 onto the stack, sorted, the largest bound first.
+  bound ≤ 0 onto the stack, sorted, the largest bound first. In the dive (bound ≤ 0), a
+  pair whose child pairs are all leaf pairs, at most ``POPS`` of them, has them evaluated
+  with the exact kernel at once instead (no bounds, sort or later refinement: can × milk
+  overlapping 7–8 % faster, issue 15, eleventh step).
 
 The descent's pair is evaluated with
 :func:`~engine.kernels.geometry.triangle_points.exact_point` (distance and closest points);
@@ -249,6 +252,15 @@ def _gather_b(b, j, r, s, k, gb, gfb):
         gfb[c, k] = b[j, FRAMES + c]
 
 
+@njit(**BORROW)
+def _leaves(rows, first, count):
+    """Nodes ``first … first + count − 1`` of ``rows`` are all leaves."""
+    for node in range(first, first + count):  # noqa: SIM110 (a loop Numba compiles)
+        if rows[node, COUNT] > 0:
+            return False
+    return True
+
+
 @njit(**JIT)
 def _split_a(count_a, radius_a, count_b, radius_b):
     """Unfold A's node of a pair, not both leaves (child counts, sphere radii): the larger
@@ -366,6 +378,25 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
         first_a, count_a, first_b, count_b = _unfolded(a, i, b, j)
         count = count_a * count_b
         pairs += count
+        if (
+            key[e] <= 0.0
+            and count <= POPS
+            and _leaves(a, first_a, count_a)
+            and _leaves(b, first_b, count_b)
+        ):
+            # the dive reached a pair whose child pairs are all leaf pairs: their exact
+            # distances in one call, instead of bounds, a sort and a refinement later
+            for k in range(count):
+                ci, cj = first_a + k // count_b, first_b + k % count_b
+                _gather_a(prepared_a, ci, k, ga, gfa)
+                _gather_b(b, cj, r, s, k, gb, gfb)
+            exact_paired(ga, gfa, gb, gfb, count, one, dist)
+            exact += count
+            for k in range(count):
+                d = np.float64(dist[k])
+                if d < best:
+                    best, best_i, best_j = d, first_a + k // count_b, first_b + k % count_b
+            continue
         if count > child_low.shape[0]:
             child_low = np.empty(count)
             child = np.empty((2, count), np.int64)
