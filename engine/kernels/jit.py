@@ -127,10 +127,11 @@ def tail_masked(function):
     """Mark a block kernel (apply under ``@njit``) whose loop runs on a few pairs at a time
     (often fewer than a vector): LLVM vectorises its loops with masked (predicated) lanes
     and no scalar remainder, so a block of 2 to 7 pairs takes one vector iteration instead
-    of 2 to 7 scalar ones. Only the marked kernels: long loops (the row kernels) run a few
-    per cent slower masked. The option applies while LLVM optimises the kernel's own code
-    (:func:`_install_tail_masking`); a Numba that does not offer that hook compiles the
-    kernel as before (same results: the lanes compute what the scalar loop computes)."""
+    of 2 to 7 scalar ones. Only the marked kernels: long loops run slower masked (the
+    streamed iterative kernel 10–16 %, the cull on 256 pairs 14 %). The option applies
+    while LLVM optimises the kernel's own code (:func:`_install_tail_masking`); a Numba
+    that does not offer that hook compiles the kernel as before (same results: the lanes
+    compute what the scalar loop computes)."""
     _MASKED_NAMES.add(function.__qualname__)
     return function
 
