@@ -121,15 +121,14 @@ def mesh_distance(
     """
     check_posed_pair(tree_a, pose_a, tree_b, pose_b)
     dtype = check_precision(precision)
-    rows_a, rows_b = tree_a.views.distance_rows, tree_b.views.distance_rows
-    prepared_a = rows_a if dtype is np.float64 else tree_a.views.prepared_rows(precision)
+    rows_a, rows_b = tree_a.views.kernel_distance_rows, tree_b.views.kernel_distance_rows
+    prepared_a = rows_a if dtype is np.float64 else tree_a.views.kernel_prepared_rows(precision)
     # the kernel writes the points into an array allocated here, and returns scalars
     # only: three arrays built from returned tuples cost 1.2 µs, this 0.3 µs
     points = np.empty((2, 3))
-    found = ds.distance_kernel(
-        prepared_a, rows_a, rows_b,
-        pose_a.position, pose_a.orientation, pose_b.position, pose_b.orientation, points,
-    )  # fmt: skip
+    # (writeable arrays, the poses packed: Numba's dispatch of the 8 arguments, 3 of
+    # them read-only, took 0.70 µs, of these 6 0.30 µs)
+    found = ds.distance_kernel(prepared_a, rows_a, rows_b, pose_a._packed, pose_b._packed, points)
     distance, face_a, face_b, pairs, probes, rounds, largest, pruned = found
     # the frozen dataclass's __init__ sets each field through object.__setattr__ (1.4 µs
     # of a ~6 µs call); the same fields stored into the new instance's __dict__: 0.5 µs

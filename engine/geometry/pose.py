@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -28,19 +29,28 @@ class Pose:
 
     position: np.ndarray
     orientation: np.ndarray
+    # (7,) float64: the position, then the orientation; ``position`` and ``orientation``
+    # are read-only views of it. Kernels take this one, writeable: Numba types a read-only
+    # array argument on a slower path, and one argument costs less than two (0.1 µs of a
+    # ``mesh_distance`` call: BENCHMARKS.md, issue 15, twelfth step). Nothing writes it.
+    _packed: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         p = _vector(self.position, 3, "position")
         q = _vector(self.orientation, 4, "orientation")
-        norm = float(np.linalg.norm(q))
+        norm = math.sqrt(q.dot(q))  # np.linalg.norm's arithmetic, without its checks
         if abs(norm - 1.0) > _UNIT_TOLERANCE:
             raise InvalidArgumentError(
                 f"orientation must be a unit quaternion (w, x, y, z); its norm is {norm:.6g}"
             )
-        q = q / norm
+        packed = np.empty(7)
+        packed[:3] = p
+        np.divide(q, norm, out=packed[3:])
+        p, q = packed[:3], packed[3:]
         p.flags.writeable = q.flags.writeable = False  # the rotation is cached
         object.__setattr__(self, "position", p)
         object.__setattr__(self, "orientation", q)
+        object.__setattr__(self, "_packed", packed)
 
     @classmethod
     def identity(cls) -> Pose:

@@ -357,6 +357,12 @@ class TreeViews:
         column layout is that module's): each node's triangle and frame (the master set),
         bounding sphere, ``g``, children, face, the tree's extent and the node's box
         (:attr:`distance_boxes`)."""
+        return _read_only(self.kernel_distance_rows)
+
+    @cached_property
+    def kernel_distance_rows(self) -> np.ndarray:
+        """:attr:`distance_rows`, writeable, for the kernel only (which reads them): Numba
+        types a read-only array argument on a slower path."""
         master, bounds = self.geometry.master, self.distance_bounds
         rows = np.empty((len(self._tree), ds.N_COLUMNS))
         rows[:, ds.COORDS : ds.COORDS + 9] = master.coords_rm
@@ -369,7 +375,6 @@ class TreeViews:
         rows[:, ds.FACE] = self._tree.face
         rows[:, ds.EXTENT] = self.geometry.extent
         rows[:, db.BOX : db.BOX + db.N_BOX] = self.distance_boxes
-        rows.flags.writeable = False
         return rows
 
     def prepared_rows(self, precision: str) -> np.ndarray:
@@ -377,10 +382,21 @@ class TreeViews:
         float64 master rows rounded as :meth:`TreeGeometry.node_set` rounds them): the A
         side of :func:`~engine.kernels.collision.distance_search.distance_kernel` in
         float32; computed once per precision."""
+        return _read_only(self.kernel_prepared_rows(precision))
+
+    def kernel_prepared_rows(self, precision: str) -> np.ndarray:
+        """:meth:`prepared_rows`, writeable, for the kernel only (as
+        :attr:`kernel_distance_rows`)."""
         rows = self._prepared_rows.get(precision)
         if rows is None:
             nodes = self.geometry.node_set(precision, False)
             rows = np.ascontiguousarray(np.hstack([nodes.coords_rm, nodes.frames_rm]))
-            rows.flags.writeable = False
             self._prepared_rows[precision] = rows
         return rows
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """A read-only view of ``array``."""
+    view = array.view()
+    view.flags.writeable = False
+    return view
