@@ -42,8 +42,8 @@ ends (every other bound is at least as large). Else:
   vertex pair, less ``g_a + g_b``, does not: ``may_drop``) is not refined;
 * any other pair (refined, or with a bound ≤ 0: the depth-first dive skips bound 3) is
   unfolded: its child pairs get bounds 1 and 2 (B's nodes moved into A's frame once per
-  unfolding, ``place_node``; with at least ``WIDE`` of them, the bounds of each A node
-  against all of them in one vectorised loop, ``child_bounds``: helpers of
+  unfolding, ``place_node``; with at least ``WIDE`` of them, the bounds of the A nodes
+  against all of them in one call, a vectorised loop each, ``child_bounds``: helpers of
   :mod:`~engine.kernels.collision.distance_bounds`), and those kept are pushed
   unrefined: those with a positive bound onto the heap as they come, then those with a
   bound ≤ 0 onto the stack, sorted, the largest bound first. In the dive (bound ≤ 0), a
@@ -315,7 +315,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     child = np.empty((2, CHILDREN_START), np.int64)
     keep = np.empty((2, 8), np.int64)  # children kept by the parent test
     placed = np.empty((PLACED, 9))  # B's nodes of an unfolded pair, moved (+ B's parent)
-    lows = np.empty(9)  # bounds of one A child against them
+    lows = np.empty((8, 9))  # bounds of the A children against them
     key[0] = max(node_bound(a, ZERO, b, ZERO, r, s, np.inf, margin), 0.0)
     entry_a[0], entry_b[0], refined[0] = 0, 0, 0
     entries = size = depth = ZERO
@@ -433,7 +433,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
         if max(count_a, count_b) > keep.shape[1]:
             keep = np.empty((2, max(count_a, count_b)), np.int64)
             placed = np.empty((PLACED, max(count_a, count_b) + 1))
-            lows = np.empty(max(count_a, count_b) + 1)
+            lows = np.empty((max(count_a, count_b), max(count_a, count_b) + 1))
         limit = best + margin
         for t in range(count_b):  # B's nodes moved once
             place_node(b, first_b + t, r, s, placed, t)
@@ -467,14 +467,14 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
         # the largest bound first, and pushed after them
         kept = 0
         wide = count_b >= WIDE
+        if wide:
+            child_bounds(a, keep[0], kept_a, placed, count_b, lows)
         for ta in range(kept_a):
             ci = keep[0, ta]
-            if wide:
-                child_bounds(a, ci, placed, count_b, lows)
             for tb in range(kept_b):
                 t = keep[1, tb]
                 if wide:
-                    low = lows[t]
+                    low = lows[ta, t]
                 else:
                     low = bound_placed(a, ci, placed, t, best, margin)
                 if low - margin > best:

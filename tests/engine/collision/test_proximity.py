@@ -310,7 +310,7 @@ def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
     rng = np.random.default_rng(15)
     radii = tree_a.bounding_radius + tree_b.bounding_radius
     placed = np.empty((db.N_PLACED, 1))
-    node, low = np.empty((db.PLACED, 1)), np.empty(1)
+    node, low, row = np.empty((db.PLACED, 1)), np.empty((1, 1)), np.empty(1, np.int64)
     for pose in range(6):
         q = rng.normal(size=(2, 4))
         pose_a = Pose(rng.normal(size=3), q[0] / np.linalg.norm(q[0]))
@@ -342,14 +342,16 @@ def test_node_bounds_never_exceed_the_distance_of_the_covered_faces(pair):
             assert sphere <= true + tol, (pose, i, j, sphere, true)
             # the children's vectorised bound: at least both, never beyond the faces
             db.place_node(rows_b, j, r, s, node, 0)
-            db.child_bounds(rows_a, i, node, 1, low)
-            assert max(box, sphere) - tol <= low[0] <= true + tol, (pose, i, j, low[0], true)
+            row[0] = i
+            db.child_bounds(rows_a, row, 1, node, 1, low)
+            assert max(box, sphere) - tol <= low[0, 0] <= true + tol, (pose, i, j, low, true)
         for i, j in nodes_near(every, tree_a, tree_b):
             true = every[np.ix_(cover_a[i], cover_b[j])].min()
             assert db.box_gap(rows_a, i, rows_b, j, r, s) <= true + tol, (pose, i, j)
             db.place_node(rows_b, j, r, s, node, 0)
-            db.child_bounds(rows_a, i, node, 1, low)
-            assert low[0] <= true + tol, (pose, i, j, low[0], true)
+            row[0] = i
+            db.child_bounds(rows_a, row, 1, node, 1, low)
+            assert low[0, 0] <= true + tol, (pose, i, j, low, true)
             tri = pose_a.apply(tree_a.triangles[i])[None], pose_b.apply(tree_b.triangles[j])[None]
             node_d = triangle_distances(*tri, kernel="exact").distance[0]
             gap = rows_a[i, ds.GAP] + rows_b[j, ds.GAP]

@@ -76,6 +76,17 @@ def test_the_pose_owns_read_only_float64_copies():
             array[0] = 7.0
 
 
+def test_the_kernels_copy_is_the_position_then_the_orientation():
+    """``_packed`` (what kernels take, writeable) holds the pose's values, and the public
+    arrays are read-only views of it: what a kernel reads is what the user sees."""
+    pose = Pose([1.0, -2.0, 3.5], np.array([1.0, 1.0, 1.0, 1.0]) / 2)
+    np.testing.assert_array_equal(pose._packed, [1.0, -2.0, 3.5, 0.5, 0.5, 0.5, 0.5])
+    assert pose._packed.flags.writeable and pose._packed.dtype == np.float64
+    assert np.shares_memory(pose.position, pose._packed)
+    assert np.shares_memory(pose.orientation, pose._packed)
+    assert "_packed" not in repr(pose)
+
+
 def test_identity():
     pose = Pose.identity()
     np.testing.assert_array_equal(pose.position, np.zeros(3))

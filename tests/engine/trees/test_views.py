@@ -153,3 +153,19 @@ def test_epsilon_copies_share_the_triangle_views_and_not_the_epsilon_ones(built)
     gap, old_gap = copy.views.distance_bounds.gap, tree.views.distance_bounds.gap
     np.testing.assert_allclose(gap, old_gap, rtol=0, atol=1e-14)  # the shift's rounding only
     assert (gap >= 0).all()
+
+
+def test_distance_rows_are_read_only_views_of_the_kernels_rows(built):
+    """The public rows cannot be written; the kernel's (writeable: Numba types read-only
+    arguments on a slower path) are the same memory, for float64 and float32."""
+    _, tree = built
+    views = tree.views
+    for public, kernel in (
+        (views.distance_rows, views.kernel_distance_rows),
+        (views.prepared_rows("float32"), views.kernel_prepared_rows("float32")),
+    ):
+        assert not public.flags.writeable and kernel.flags.writeable
+        assert np.shares_memory(public, kernel)
+        np.testing.assert_array_equal(public, kernel)
+        with pytest.raises(ValueError):
+            public[0, 0] = 1.0
