@@ -22,7 +22,7 @@ from numba import njit
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.pair_lists import by_faces, listed_contacts, reference_distances
 from engine.kernels.collision.traversal import query_kernel
-from engine.kernels.geometry.rotation import quaternion_rotation
+from engine.kernels.geometry.rotation import rotation_entries
 from engine.kernels.geometry.triangle_batch import (
     ITERATIVE,
     N_STATS,
@@ -33,7 +33,7 @@ from engine.kernels.geometry.triangle_batch import (
     listed_workspace,
     result_buffers,
 )
-from engine.kernels.jit import EXACT_JIT, JIT
+from engine.kernels.jit import EXACT_BORROW, EXACT_JIT, JIT
 
 MARGIN_ULPS = 256.0
 SQRT3 = np.sqrt(3.0)
@@ -162,20 +162,72 @@ def relative_pose(position_a, orientation_a, position_b, orientation_b):
     """``(R_a, R, s)``: A's rotation and the map ``x ↦ R x + s`` from B's frame to A's
     (``R = R_aᵀ R_b``, ``s = R_aᵀ (p_b − p_a)``); positions (3,), orientations (4,)
     unit quaternions, results (3, 3), (3, 3), (3,) float64."""
-    ra = np.empty((3, 3))
-    rb = np.empty((3, 3))
-    quaternion_rotation(orientation_a, ra)
-    quaternion_rotation(orientation_b, rb)
-    rotation = np.empty((3, 3))
-    shift = np.empty(3)
-    d0 = position_b[0] - position_a[0]
-    d1 = position_b[1] - position_a[1]
-    d2 = position_b[2] - position_a[2]
-    for i in range(3):
-        for j in range(3):
-            rotation[i, j] = ra[0, i] * rb[0, j] + ra[1, i] * rb[1, j] + ra[2, i] * rb[2, j]
-        shift[i] = ra[0, i] * d0 + ra[1, i] * d1 + ra[2, i] * d2
-    return ra, rotation, shift
+    ra, rotation, shift = relative_entries(
+        (position_a[0], position_a[1], position_a[2]),
+        (orientation_a[0], orientation_a[1], orientation_a[2], orientation_a[3]),
+        (position_b[0], position_b[1], position_b[2]),
+        (orientation_b[0], orientation_b[1], orientation_b[2], orientation_b[3]),
+    )
+    ra_out, rotation_out, shift_out = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+    for k in range(9):
+        ra_out[k // 3, k % 3] = ra[k]
+        rotation_out[k // 3, k % 3] = rotation[k]
+    for k in range(3):
+        shift_out[k] = shift[k]
+    return ra_out, rotation_out, shift_out
+
+
+@njit(**EXACT_BORROW)
+def packed_relative_pose(pose_a, pose_b):
+    """:func:`relative_pose` of two poses ``(7,)`` float64 (position, then quaternion) as
+    tuples ``(R_a (9,), R (9,), s (3,))``, matrices row by row: the same bits, no array
+    made."""
+    return relative_entries(
+        (pose_a[0], pose_a[1], pose_a[2]),
+        (pose_a[3], pose_a[4], pose_a[5], pose_a[6]),
+        (pose_b[0], pose_b[1], pose_b[2]),
+        (pose_b[3], pose_b[4], pose_b[5], pose_b[6]),
+    )
+
+
+@njit(**EXACT_BORROW)
+def relative_entries(position_a, orientation_a, position_b, orientation_b):
+    """The arithmetic of :func:`relative_pose` on tuples (positions 3, quaternions 4):
+    ``(R_a, R, s)`` as tuples of 9, 9 and 3 floats, matrices row by row."""
+    ra = rotation_entries(orientation_a[0], orientation_a[1], orientation_a[2], orientation_a[3])
+    rb = rotation_entries(orientation_b[0], orientation_b[1], orientation_b[2], orientation_b[3])
+    d = (
+        position_b[0] - position_a[0],
+        position_b[1] - position_a[1],
+        position_b[2] - position_a[2],
+    )
+    return (
+        ra,
+        (
+            _transposed_product(ra, rb, 0, 0),
+            _transposed_product(ra, rb, 0, 1),
+            _transposed_product(ra, rb, 0, 2),
+            _transposed_product(ra, rb, 1, 0),
+            _transposed_product(ra, rb, 1, 1),
+            _transposed_product(ra, rb, 1, 2),
+            _transposed_product(ra, rb, 2, 0),
+            _transposed_product(ra, rb, 2, 1),
+            _transposed_product(ra, rb, 2, 2),
+        ),
+        (_turned_back(ra, d, 0), _turned_back(ra, d, 1), _turned_back(ra, d, 2)),
+    )
+
+
+@njit(**EXACT_BORROW)
+def _transposed_product(ra, rb, i, j):
+    """``(R_aᵀ R_b)[i, j]`` of two row-major 9-tuples."""
+    return ra[i] * rb[j] + ra[3 + i] * rb[3 + j] + ra[6 + i] * rb[6 + j]
+
+
+@njit(**EXACT_BORROW)
+def _turned_back(ra, d, i):
+    """``(R_aᵀ d)[i]`` of a row-major 9-tuple and a 3-tuple."""
+    return ra[i] * d[0] + ra[3 + i] * d[1] + ra[6 + i] * d[2]
 
 
 @njit(**EXACT_JIT)
