@@ -46,11 +46,13 @@ class Pose:
         packed = np.empty(7)
         packed[:3] = p
         np.divide(q, norm, out=packed[3:])
-        p, q = packed[:3], packed[3:]
-        p.flags.writeable = q.flags.writeable = False  # the rotation is cached
-        object.__setattr__(self, "position", p)
-        object.__setattr__(self, "orientation", q)
-        object.__setattr__(self, "_packed", packed)
+        _hold(self, packed)
+
+    def __reduce__(self):
+        # a copy of the packed array, held again on loading: numpy's pickles drop the
+        # read-only flag and the views, and validating again would renormalise the
+        # quaternion (a last bit may change)
+        return (_unpickled, (self._packed.copy(),))
 
     @classmethod
     def identity(cls) -> Pose:
@@ -86,6 +88,23 @@ class Pose:
             ]
         )
         return Pose(self.apply(other.position), q / np.linalg.norm(q))
+
+
+def _hold(pose: Pose, packed: np.ndarray) -> None:
+    """Make ``packed (7,)`` float64 the pose's: its read-only views are the position and
+    the orientation (the rotation is cached)."""
+    p, q = packed[:3], packed[3:]
+    p.flags.writeable = q.flags.writeable = False
+    object.__setattr__(pose, "position", p)
+    object.__setattr__(pose, "orientation", q)
+    object.__setattr__(pose, "_packed", packed)
+
+
+def _unpickled(packed: np.ndarray) -> Pose:
+    """The pose of a pickled ``packed`` array (:meth:`Pose.__reduce__`), bit for bit."""
+    pose = object.__new__(Pose)
+    _hold(pose, packed)
+    return pose
 
 
 def _vector(value, n: int, name: str) -> np.ndarray:

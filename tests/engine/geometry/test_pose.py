@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -85,6 +87,24 @@ def test_the_kernels_copy_is_the_position_then_the_orientation():
     assert np.shares_memory(pose.position, pose._packed)
     assert np.shares_memory(pose.orientation, pose._packed)
     assert "_packed" not in repr(pose)
+
+
+def test_a_pickled_pose_is_the_same_bits_and_still_read_only():
+    """Pickling (as multiprocessing and Ray do) and copying keep every bit, the arrays
+    read-only and the kernel's copy theirs (numpy's own pickles drop both)."""
+    q = np.array([0.1, 0.7, -0.3, 0.2])
+    pose = Pose([1.0 / 3.0, -2.0, 1e-300], q / np.linalg.norm(q))
+    for copied in (pickle.loads(pickle.dumps(pose)), copy.deepcopy(pose), copy.copy(pose)):
+        assert type(copied) is Pose
+        np.testing.assert_array_equal(copied._packed, pose._packed)
+        assert copied.position.tobytes() == pose.position.tobytes()
+        assert copied.orientation.tobytes() == pose.orientation.tobytes()
+        assert np.shares_memory(copied.position, copied._packed)
+        assert np.shares_memory(copied.orientation, copied._packed)
+        for array in (copied.position, copied.orientation):
+            with pytest.raises(ValueError):
+                array[0] = 7.0
+        np.testing.assert_array_equal(copied.rotation, pose.rotation)
 
 
 def test_identity():
