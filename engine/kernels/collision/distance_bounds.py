@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import BORROW, JIT, select, sqrt, tail_masked
+from engine.kernels.jit import BORROW, DISTINCT, JIT, select, sqrt, tail_masked
 
 # Columns of the node rows (:mod:`~engine.kernels.collision.distance_search` documents them).
 COORDS, FRAMES, CENTRE, RADIUS, GAP, FIRST, COUNT, FACE, EXTENT = 0, 9, 23, 26, 27, 28, 29, 30, 31
@@ -258,7 +258,7 @@ def bound_placed(a, i, placed, k, best, margin):
     return max(sphere, placed_gap(a, i, placed, k))
 
 
-@njit(**BORROW)
+@njit(**DISTINCT)
 @tail_masked
 def child_bounds(a, nodes, m, placed, n, out):
     """``out[k, t]`` (``0 ≤ k < m``, ``0 ≤ t < n``): the larger of bounds 1 and 2 of A's
@@ -267,12 +267,15 @@ def child_bounds(a, nodes, m, placed, n, out):
     :func:`placed_gap`); for each A node one loop over the columns, vectorised. (All the
     A children of an unfolding in one call: can × milk at −0.001 1.22 → 1.15 of Coal's
     time, issue 15, twelfth step. ``_bounds_row`` is ``tail_masked`` as well: LLVM
-    vectorises its loop when it compiles it, before inlining.)"""
+    vectorises its loop when it compiles it, before inlining. ``DISTINCT``: ``out`` shares
+    no memory with the inputs, and the loop runs without runtime overlap checks: can × milk
+    at −0.001 2.75–2.81 → 2.64–2.69 µs in the kernel. Two A nodes a loop, their chains
+    interleaved, was slower: 2.78–3.01 → 3.14–3.33 µs.)"""
     for k in range(m):
         _bounds_row(a, nodes[k], placed, n, out, k)
 
 
-@njit(**BORROW, forceinline=True)
+@njit(**DISTINCT, forceinline=True)
 @tail_masked
 def _bounds_row(a, i, placed, n, out, k):
     """Row ``k`` of :func:`child_bounds`: A's node ``i``."""
