@@ -31,8 +31,9 @@ class Pose:
     orientation: np.ndarray
     # (7,) float64: the position, then the orientation; ``position`` and ``orientation``
     # are read-only views of it. Kernels take this one, writeable: Numba types a read-only
-    # array argument on a slower path, and one argument costs less than two (0.1 µs of a
-    # ``mesh_distance`` call: BENCHMARKS.md, issue 15, twelfth step). Nothing writes it.
+    # array argument on a slower path, and one argument costs less than two (with the
+    # node rows writeable too, ``mesh_distance``'s dispatch went from 0.70 to 0.30 µs:
+    # BENCHMARKS.md, issue 15, twelfth step). Nothing writes it.
     _packed: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
