@@ -64,6 +64,7 @@ from engine.geometry.shapes import plane
 from engine.kernels.dynamics import motion as kd
 from engine.trees.halos import DEFAULT_RELATIVE_EPSILON, SceneTrees, check_epsilon
 from engine.trees.tree import SurrogateTree
+from engine.workers import in_parts
 
 __all__ = ["DEFAULT_RELATIVE_EPSILON", "SCHEMES", "Scene", "SceneState"]
 
@@ -443,15 +444,24 @@ class Scene:
     def configuration(self, positions, orientations) -> tuple[np.ndarray, np.ndarray]:
         """Mesh-frame origins ``(n, 3)`` of the bodies at ``positions (n, 3)``,
         ``orientations (n, 4)``, and the broad phase's candidate pairs ``(k, 2)``."""
-        rot = np.empty((len(self), 3, 3))
-        kd.rotation_matrices(orientations, rot)
-        origins = positions - np.einsum("bij,bj->bi", rot, self.centers)
-        roots = self._roots()
-        centres = origins + np.einsum("bij,bj->bi", rot, roots[:, :3])
-        if not (np.abs(centres) <= coordinate_limit(np.float64)).all():  # NaN fails too
-            bad = int(np.flatnonzero(~(np.abs(centres) <= coordinate_limit(np.float64)))[0])
+        n = len(self)
+        positions = np.ascontiguousarray(positions, dtype=np.float64)
+        orientations = np.ascontiguousarray(orientations, dtype=np.float64)
+        origins, centres = np.empty((n, 3)), np.empty((n, 3))
+        roots, limit, bad = self._roots(), coordinate_limit(np.float64), []
+
+        def part(first: int, last: int) -> None:
+            found = kd.placed_bodies(
+                positions, orientations, self.centers, roots, limit, first, last,
+                (origins, centres),
+            )  # fmt: skip
+            if found >= 0:
+                bad.append(found)
+
+        in_parts(self.threads, n, part)
+        if bad:
             raise InvalidArgumentError(
-                f"body {bad // 3} is not at a finite position within the broad phase's range"
+                f"body {min(bad)} is not at a finite position within the broad phase's range"
             )
         return origins, self._candidates.pairs(
             centres, np.ascontiguousarray(roots[:, 3]), self.fixed

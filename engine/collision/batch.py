@@ -34,6 +34,7 @@ __all__ = ["ContactBatch", "TreeBank", "find_contacts_batch"]
 MAX_LEVELS = 32
 """Per-level comparison counts kept per pair (deeper levels are counted, not kept)."""
 _PAIRS_PER_TASK = 64  # below this many pairs per worker, one thread is faster
+_CHUNKS_PER_THREAD = 4  # chunks of pairs a worker thread takes in turn, on average
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,7 @@ class ContactBatch:
     levels : (k, MAX_LEVELS) int64 — comparisons per level of each pair
     counts : (k, 7) int64 — depth, unfoldings, iterative, fallbacks, comparisons,
         node pairs pruned by bounding spheres, 1 if the pair's cached list served
+    totals : (7,) int64 — ``counts`` summed over the pairs (by the worker chunks)
     """
 
     pair_offsets: np.ndarray
@@ -63,6 +65,7 @@ class ContactBatch:
     overlaps: np.ndarray
     levels: np.ndarray
     counts: np.ndarray
+    totals: np.ndarray
 
     def __len__(self) -> int:
         return len(self.pair_offsets) - 1
@@ -104,7 +107,7 @@ class ContactBatch:
     @property
     def comparisons(self) -> int:
         """Triangle comparisons over all pairs."""
-        return int(self.counts[:, kb.COUNT_COMPARISONS].sum())
+        return int(self.totals[kb.COUNT_COMPARISONS])
 
 
 class TreeBank:
@@ -236,7 +239,7 @@ class TreeBank:
         if threads == 1 or k < 2 * _PAIRS_PER_TASK:
             bounds = np.array([0, k], np.int64)
         else:
-            chunks = min(k // _PAIRS_PER_TASK, 4 * threads)
+            chunks = min(k // _PAIRS_PER_TASK, _CHUNKS_PER_THREAD * threads)
             bounds = np.linspace(0, k, chunks + 1).astype(np.int64)
         # the pairs and chunks of the cache's last search: chunk c reads and renews part c
         by_part = cache is not None and cache._aligned(keys, bounds)
@@ -258,6 +261,7 @@ class TreeBank:
         # zeroed here serially, was 3 ms an evaluation)
         counts = np.empty((k, kb.N_COUNTS), np.int64)
         levels = np.empty((k, MAX_LEVELS), np.int64)
+        totals = np.empty((len(bounds) - 1, kb.N_COUNTS), np.int64)  # a row per chunk
 
         def chunk(c: int):
             start, stop = int(bounds[c]), int(bounds[c + 1])
@@ -272,6 +276,7 @@ class TreeBank:
                 counts[start:stop],
                 levels[start:stop],
             )
+            kb.count_totals(counts[start:stop], totals[c])
             if by_part:
                 cache._renew(c, counts[start:stop, kb.COUNT_LISTED] == 1, result)
             return result
@@ -294,6 +299,7 @@ class TreeBank:
             joined.overlaps,
             levels,
             counts,
+            totals.sum(axis=0),
         )
 
 

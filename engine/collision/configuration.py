@@ -21,8 +21,17 @@ from engine.collision.pair_cache import PairCache
 from engine.errors import InvalidArgumentError
 from engine.geometry.pose import Pose
 from engine.kernels.collision import batch as kb
+from engine.workers import in_parts
 
-__all__ = ["SEARCH_COUNTERS", "Contacts", "batched_contacts", "flat_contacts"]
+__all__ = [
+    "SEARCH_COUNTERS",
+    "Contacts",
+    "batched_contacts",
+    "flat_contacts",
+    "gathered_queries",
+]
+
+_ROWS_PER_PART = 4096  # bodies or pairs a worker thread gathers at least
 
 SEARCH_COUNTERS = (
     "comparisons",
@@ -79,20 +88,10 @@ def batched_contacts(
     batched call: body i is tree ``tree_index[i]`` of ``bank`` with its mesh-frame origin at
     ``origins (n, 3)`` float64 and orientation ``orientations (n, 4)`` (unit within 1e-6,
     renormalised here as the bank would); pair (a, b) is cached under ``a·n + b``."""
-    k = len(pairs)
-    queries = kb.PairQueries(
-        np.empty(k, np.int64), np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 4)),
-        np.empty((k, 3)), np.empty((k, 4)),
-    )  # fmt: skip
-    bad = kb.gather_queries(pairs, tree_index, origins, orientations, queries)
-    if bad >= 0:
-        norm = float(np.linalg.norm(orientations[bad]))
-        raise InvalidArgumentError(
-            f"orientations[{bad}] must be a unit quaternion; its norm is {norm:.6g}"
-        )
+    queries = gathered_queries(pairs, tree_index, origins, orientations, threads)
     keys = pairs[:, 0] * len(tree_index) + pairs[:, 1]
     batch = bank.run(queries, kernel, threads, cache, keys, keep_pairs=False)
-    totals = batch.counts.sum(axis=0)
+    totals = batch.totals
     counters = dict.fromkeys(SEARCH_COUNTERS, 0)
     for name, column in _BATCH_COUNTERS:
         counters[name] = int(totals[column])
@@ -100,6 +99,45 @@ def batched_contacts(
     return Contacts(
         pairs, batch.contact_offsets, batch.points, batch.normals, batch.overlaps, counters
     )
+
+
+def gathered_queries(
+    pairs: np.ndarray,
+    tree_index: np.ndarray,
+    origins: np.ndarray,
+    orientations: np.ndarray,
+    threads: int | None,
+) -> kb.PairQueries:
+    """The :class:`~engine.kernels.collision.batch.PairQueries` of body ``pairs (k, 2)``
+    int64 (arguments as :func:`batched_contacts`): orientations renormalised as numpy's
+    ``q / np.linalg.norm(q)`` rounds it, rows gathered per pair, each in parts on the
+    worker threads (``threads``; None: all cores). An orientation whose norm is not within
+    1e-6 of 1 raises :class:`~engine.errors.InvalidArgumentError` naming the first."""
+    k, n = len(pairs), len(orientations)
+    queries = kb.PairQueries(
+        np.empty(k, np.int64), np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 4)),
+        np.empty((k, 3)), np.empty((k, 4)),
+    )  # fmt: skip
+    unit, bad = np.empty((n, 4)), []
+
+    def units(first: int, last: int) -> None:
+        found = kb.unit_orientations(orientations, first, last, unit)
+        if found >= 0:
+            bad.append(found)
+
+    in_parts(threads, n, units, least=_ROWS_PER_PART)
+    if bad:
+        first = min(bad)
+        norm = float(np.linalg.norm(orientations[first]))
+        raise InvalidArgumentError(
+            f"orientations[{first}] must be a unit quaternion; its norm is {norm:.6g}"
+        )
+
+    def rows(first: int, last: int) -> None:
+        kb.gather_queries(pairs, tree_index, origins, unit, first, last, queries)
+
+    in_parts(threads, k, rows, least=_ROWS_PER_PART)
+    return queries
 
 
 def flat_contacts(

@@ -19,8 +19,21 @@ import numpy as np
 from engine.collision.configuration import Contacts
 from engine.dynamics.bodies import body_terms
 from engine.kernels.dynamics import contact_forces as kf
+from engine.workers import in_parts
 
-__all__ = ["Evaluation", "WarmStart", "Wrench", "cross", "evaluate", "evaluation_key", "reused"]
+__all__ = [
+    "Evaluation",
+    "WarmStart",
+    "Wrench",
+    "contact_forces",
+    "cross",
+    "evaluate",
+    "evaluation_key",
+    "reused",
+]
+
+_PAIRS_PER_PART = 4096  # a part of contact_forces' pairs: ~0.1 ms of terms
+_BODIES_PER_PART = 1024  # a part of its bodies: ~0.05 ms of sums
 
 
 class Wrench(NamedTuple):
@@ -93,17 +106,9 @@ def evaluate(scene, configuration, origins: np.ndarray, search) -> Evaluation:
     energy = 0.0
     for found, parameters in ((contacts, law), (surrogate, (*law[:3], 0.0, law[4]))):
         if found is not None and len(found.points):
-            energy += kf.contact_forces(
-                found.bodies,
-                found.offsets,
-                found.points,
-                found.normals,
-                found.overlaps,
-                (x, v, w, origins),
-                (scene.masses, scene.epsilon),
-                parameters,
-                out,
-            )
+            state = (x, v, w, origins)
+            params = (scene.masses, scene.epsilon)
+            energy += contact_forces(found, state, params, parameters, out, scene.threads)
     if len(bodies.fixed):
         for array in (force, torque, friction_force, friction_torque):
             array[bodies.fixed] = 0.0
@@ -115,6 +120,41 @@ def evaluate(scene, configuration, origins: np.ndarray, search) -> Evaluation:
         energy=energy,
         changed=changed,
     )
+
+
+def contact_forces(found: Contacts, state, params, law, out, threads: int | None) -> float:
+    """Add the forces of the contacts ``found`` to ``out`` with the contact ``law`` (the
+    kernel tuple of a :class:`~engine.dynamics.forces.ContactModel`); returns their elastic
+    energy. ``state = (positions, velocities, angular_velocities, lever_origins)``, each
+    ``(n, 3)`` float64; ``params = (masses, epsilon)``, ``(n,)`` float64 (``inf`` mass for a
+    fixed body); ``out`` as
+    :func:`~engine.kernels.dynamics.contact_forces.apply_terms` takes it.
+
+    Each contact's terms are computed in parts of the pairs, then each body sums its own
+    contacts in pair order, in parts of the bodies, on the worker threads (``threads``;
+    None: all cores): the same bits at any thread count. On the paper's 24,576-sphere
+    grid (71,168 contacts) this was 2.2 ms of serial host work an evaluation."""
+    bodies, offsets = found.bodies, found.offsets
+    terms = np.empty((len(found.points), kf.TERMS))
+
+    def terms_part(first: int, last: int) -> None:
+        kf.contact_terms(
+            bodies, offsets, found.points, found.normals, found.overlaps, state, params, law,
+            first, last, terms,
+        )  # fmt: skip
+
+    in_parts(threads, len(bodies), terms_part, least=_PAIRS_PER_PART)
+    starts, entries = np.empty(len(state[0]) + 1, np.int64), np.empty(2 * len(bodies), np.int64)
+    kf.incidence(bodies, starts, entries)
+    friction = law[3] > 0.0
+
+    def bodies_part(first: int, last: int) -> None:
+        kf.apply_terms(
+            offsets, found.points, state[3], terms, starts, entries, friction, first, last, out
+        )
+
+    in_parts(threads, len(starts) - 1, bodies_part, least=_BODIES_PER_PART)
+    return kf.elastic_energy(terms)
 
 
 def evaluation_key(scene, search) -> tuple:

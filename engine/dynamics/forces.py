@@ -8,7 +8,7 @@ Coulomb's law, regularised below ``slip_velocity`` (no history: within a Picard
 iteration the force is a function of the guessed state only).
 
 A new law is a subclass with a ``kind`` known to
-:func:`engine.kernels.dynamics.contact_forces.contact_forces` (one more branch there).
+:func:`engine.kernels.dynamics.contact_forces.contact_terms` (one more branch there).
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from engine.errors import InvalidArgumentError
+from engine.kernels.dynamics import motion as kd
 
 __all__ = ["Sleep"]
 
@@ -90,9 +91,8 @@ class Sleep:
         :attr:`steps` steps; bodies near a moving one (broad-phase candidates) wake or
         start counting again."""
         free = ~scene.fixed
-        speed = np.linalg.norm(scene.velocities, axis=1) + radius * np.linalg.norm(
-            scene.angular_velocities, axis=1
-        )
+        speed = np.empty(len(radius))
+        kd.surface_speeds(scene.velocities, scene.angular_velocities, radius, speed)
         awake = free & ~self.asleep
         resting = awake & (speed < self.speed)
         moving = awake & ~resting

@@ -85,17 +85,12 @@ class PairQueries(NamedTuple):
 
 
 @njit(**EXACT_JIT)
-def gather_queries(pairs, tree_index, origins, orientations, out):
-    """Write ``out`` (:class:`PairQueries` of ``k`` rows) for body ``pairs (k, 2)`` int64:
-    each body's tree ``tree_index (n,)`` int64, origin ``origins (n, 3)`` and orientation
-    ``orientations (n, 4)`` float64, divided by its norm as ``q / np.linalg.norm(q)``
-    rounds it (the sum of squares in numpy's order). Returns the first body whose
-    orientation's norm is not within 1e-6 of 1 (NaN included), writing nothing; else −1.
-    One pass instead of numpy's six gathers and five passes over the bodies (2.3 ms of
-    serial host work per evaluation of the paper's 24,576-sphere grid)."""
-    n = orientations.shape[0]
-    unit = np.empty((n, 4))
-    for i in range(n):
+def unit_orientations(orientations, first, last, unit):
+    """``unit[i]`` for bodies ``first ≤ i < last``: ``orientations (n, 4)`` float64 divided
+    by its norm as ``q / np.linalg.norm(q)`` rounds it (the sum of squares in numpy's
+    order). Returns the first of these bodies whose orientation's norm is not within 1e-6
+    of 1 (NaN included), else −1."""
+    for i in range(first, last):
         q0, q1, q2, q3 = (
             orientations[i, 0],
             orientations[i, 1],
@@ -106,7 +101,17 @@ def gather_queries(pairs, tree_index, origins, orientations, out):
         if not abs(norm - 1.0) <= 1e-6:
             return i
         unit[i, 0], unit[i, 1], unit[i, 2], unit[i, 3] = q0 / norm, q1 / norm, q2 / norm, q3 / norm
-    for t in range(pairs.shape[0]):
+    return -1
+
+
+@njit(**EXACT_JIT)
+def gather_queries(pairs, tree_index, origins, unit, first, last, out):
+    """Write rows ``first:last`` of ``out`` (:class:`PairQueries`) for body ``pairs (k, 2)``
+    int64: each body's tree ``tree_index (n,)`` int64, origin ``origins (n, 3)`` and unit
+    orientation ``unit (n, 4)`` float64 (:func:`unit_orientations`). One pass instead of
+    numpy's six gathers (on the paper's 24,576-sphere grid, with the norms, 2.3 ms of
+    serial host work per evaluation before it; now run in parts on the worker threads)."""
+    for t in range(first, last):
         a, b = pairs[t, 0], pairs[t, 1]
         out.tree_a[t], out.tree_b[t] = tree_index[a], tree_index[b]
         for c in range(3):
@@ -115,7 +120,6 @@ def gather_queries(pairs, tree_index, origins, orientations, out):
         for c in range(4):
             out.orientation_a[t, c] = unit[a, c]
             out.orientation_b[t, c] = unit[b, c]
-    return -1
 
 
 class QueryParams(NamedTuple):
@@ -237,6 +241,15 @@ def query_margin(extent_a, extent_b, shift, ulp):
     coordinates; a rotation stretches a max-norm by at most √3)."""
     length = np.sqrt(shift[0] * shift[0] + shift[1] * shift[1] + shift[2] * shift[2])
     return MARGIN_ULPS * ulp * 2.0 * (SQRT3 * (extent_a + extent_b) + length)
+
+
+@njit(**JIT)
+def count_totals(counts, out):
+    """``out (N_COUNTS,)`` int64: the columns of ``counts (k, N_COUNTS)`` int64 summed."""
+    out[:] = 0
+    for q in range(counts.shape[0]):
+        for j in range(N_COUNTS):
+            out[j] += counts[q, j]
 
 
 @njit(**JIT)

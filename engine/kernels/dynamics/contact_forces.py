@@ -16,36 +16,40 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import JIT
+from engine.kernels.jit import EXACT_JIT, JIT
 
 PAPER, LINEAR, HERTZ = 0, 1, 2
 
 
-@njit(**JIT)
-def contact_forces(bodies, offsets, points, normals, overlaps, state, params, law, out):
-    """Add contact forces and torques to ``out``; returns the elastic energy.
+# columns of a contact's terms (:func:`contact_terms`)
+NORMAL_FORCE = 0  # 0:3 the normal force on B (A gets the opposite)
+FRICTION_FORCE = 3  # 3:6 the friction force on B
+SPRING_SLOPE = 6  # ∂F_n/∂δ
+NORMAL_MAGNITUDE = 7  # F_n
+FRICTION_SLOPE = 8  # μ·F_n/v_slip, the friction's steepest (sticking) slope
+FRICTION_MAGNITUDE = 9  # |F_t|
+ENERGY = 10  # the elastic energy of the contact's spring
+ACTIVE = 11  # 1.0 where the contact overlaps (δ > 0) and acts, else 0.0
+TERMS = 12
 
-    ``out = (force, torque, friction_force, friction_torque (n, 3), stiffness (n, 2))``:
-    normal (spring and damping) and friction contributions go to separate arrays, so that
-    a Picard iteration can relax them separately; ``stiffness (n, 3)[b]`` receives the sums
-    over b's contacts of ∂F_n/∂δ and of the friction's ∂F_t/∂v_t (for the relaxation's
-    first weight) and of the contact forces' magnitudes |F_n| + |F_t| (the force scale of
-    Picard's convergence test).
+
+@njit(**JIT)
+def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law, first, last,
+                  terms):  # fmt: skip
+    """Fill ``terms (c, TERMS)`` float64 for the contacts of body pairs ``first:last``: each
+    contact's normal and friction force on B, the slopes and magnitudes that
+    :func:`apply_terms` sums per body, its elastic energy, and whether it acts.
 
     ``bodies (k, 2)`` int64: body pair q = (a, b) owns contacts ``offsets[q]:offsets[q + 1]``
     of ``points, normals (c, 3)`` (normals unit, from a to b) and ``overlaps (c,)``.
     ``state = (positions, velocities, angular_velocities, lever_origins)``: velocities give
-    the relative sliding velocity; torques are taken about ``lever_origins (n, 3)`` (the
-    centres of mass at the start of the step: then every contact adds the same moment to
-    both bodies with opposite signs, and angular momentum is conserved to rounding).
-    ``params = (mass (n,), epsilon (n,))`` with ``inf`` mass for fixed bodies.
-    """
-    positions, velocities, spins, origins = state
+    the relative sliding velocity. ``params = (mass (n,), epsilon (n,))`` with ``inf`` mass
+    for fixed bodies. Each contact's row is its own: any split of the pairs gives the same
+    bits."""
+    positions, velocities, spins, _ = state
     mass, epsilon = params
-    force, torque, friction_force, friction_torque, stiffness = out
     kind, k_law, zeta, mu, v_slip = law
-    energy = 0.0
-    for q in range(bodies.shape[0]):
+    for q in range(first, last):
         a, b = bodies[q, 0], bodies[q, 1]
         ma, mb = mass[a], mass[b]
         if np.isinf(ma):
@@ -58,22 +62,23 @@ def contact_forces(bodies, offsets, points, normals, overlaps, state, params, la
         for c in range(offsets[q], offsets[q + 1]):
             delta = overlaps[c]
             if delta <= 0.0:
+                terms[c, :] = 0.0
                 continue
             n0, n1, n2 = normals[c, 0], normals[c, 1], normals[c, 2]
             p0, p1, p2 = points[c, 0], points[c, 1], points[c, 2]
             if kind == PAPER:
                 k_eff = k_law * np.sqrt(m_red) / reach
                 f_n = k_eff * delta
-                energy += 0.5 * k_eff * delta * delta
+                energy = 0.5 * k_eff * delta * delta
             elif kind == LINEAR:
                 k_eff = k_law
                 f_n = k_law * delta
-                energy += 0.5 * k_law * delta * delta
+                energy = 0.5 * k_law * delta * delta
             else:
                 root = np.sqrt(delta)
                 k_eff = 1.5 * k_law * root
                 f_n = k_law * delta * root
-                energy += 0.4 * k_law * delta * delta * root
+                energy = 0.4 * k_law * delta * delta * root
             # velocity of B's material point relative to A's, at the contact point
             ra0, ra1, ra2 = p0 - positions[a, 0], p1 - positions[a, 1], p2 - positions[a, 2]
             rb0, rb1, rb2 = p0 - positions[b, 0], p1 - positions[b, 1], p2 - positions[b, 2]
@@ -88,24 +93,114 @@ def contact_forces(bodies, offsets, points, normals, overlaps, state, params, la
             if zeta > 0.0:
                 f_n = max(f_n - 2.0 * zeta * np.sqrt(k_eff * m_red) * v_n, 0.0)
             t0, t1, t2 = u0 - v_n * n0, u1 - v_n * n1, u2 - v_n * n2
-            # forces on B (A gets the opposite)
-            _apply(force, torque, origins, b, p0, p1, p2, f_n * n0, f_n * n1, f_n * n2)
-            _apply(force, torque, origins, a, p0, p1, p2, -f_n * n0, -f_n * n1, -f_n * n2)
-            stiffness[a, 0] += k_eff
-            stiffness[b, 0] += k_eff
-            stiffness[a, 2] += f_n
-            stiffness[b, 2] += f_n
+            terms[c, NORMAL_FORCE] = f_n * n0
+            terms[c, NORMAL_FORCE + 1] = f_n * n1
+            terms[c, NORMAL_FORCE + 2] = f_n * n2
+            terms[c, SPRING_SLOPE] = k_eff
+            terms[c, NORMAL_MAGNITUDE] = f_n
+            terms[c, ENERGY] = energy
+            terms[c, ACTIVE] = 1.0
             if mu > 0.0:
                 slip = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2 + v_slip * v_slip)
                 scale = mu * f_n / slip
-                g0, g1, g2 = -scale * t0, -scale * t1, -scale * t2
-                _apply(friction_force, friction_torque, origins, b, p0, p1, p2, g0, g1, g2)
-                _apply(friction_force, friction_torque, origins, a, p0, p1, p2, -g0, -g1, -g2)
-                stiffness[a, 1] += mu * f_n / v_slip  # the steepest (sticking) slope
-                stiffness[b, 1] += mu * f_n / v_slip
-                gross = scale * np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-                stiffness[a, 2] += gross
-                stiffness[b, 2] += gross
+                terms[c, FRICTION_FORCE] = -scale * t0
+                terms[c, FRICTION_FORCE + 1] = -scale * t1
+                terms[c, FRICTION_FORCE + 2] = -scale * t2
+                terms[c, FRICTION_SLOPE] = mu * f_n / v_slip
+                terms[c, FRICTION_MAGNITUDE] = scale * np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            else:
+                terms[c, FRICTION_FORCE : FRICTION_FORCE + 3] = 0.0
+                terms[c, FRICTION_SLOPE] = 0.0
+                terms[c, FRICTION_MAGNITUDE] = 0.0
+
+
+@njit(**JIT)
+def incidence(bodies, starts, entries):
+    """Each body's pairs in pair order: ``entries[starts[i]:starts[i + 1]]`` are
+    ``2·q + side`` for the pairs q of ``bodies (k, 2)`` int64 that hold body i (side 0 as
+    A, 1 as B). ``starts (n + 1,)``, ``entries (2k,)`` int64 are written (a stable counting
+    sort)."""
+    starts[:] = 0
+    for q in range(bodies.shape[0]):
+        starts[bodies[q, 0] + 1] += 1
+        starts[bodies[q, 1] + 1] += 1
+    for i in range(1, starts.shape[0]):
+        starts[i] += starts[i - 1]
+    fill = starts[:-1].copy()
+    for q in range(bodies.shape[0]):
+        for side in range(2):
+            body = bodies[q, side]
+            entries[fill[body]] = 2 * q + side
+            fill[body] += 1
+
+
+@njit(**EXACT_JIT)
+def apply_terms(offsets, points, origins, terms, starts, entries, friction, first, last, out):
+    """Add to bodies ``first:last`` the forces of their contacts' ``terms``
+    (:func:`contact_terms`), each body's in pair order (``starts``, ``entries`` from
+    :func:`incidence`), so that every body's sums are the same bits in any split of the
+    bodies.
+
+    ``out = (force, torque, friction_force, friction_torque (n, 3), stiffness (n, 3))``:
+    normal and friction contributions go to separate arrays, so that a Picard iteration can
+    relax them separately; ``stiffness[i]`` receives the sums over i's contacts of ∂F_n/∂δ
+    and of the friction's ∂F_t/∂v_t (for the relaxation's first weight) and of the contact
+    forces' magnitudes |F_n| + |F_t| (the force scale of Picard's convergence test).
+    Torques are taken about ``origins (n, 3)`` (the centres of mass at the start of the
+    step: then every contact adds the same moment to both bodies with opposite signs, and
+    angular momentum is conserved to rounding). ``friction``: whether μ > 0 (else the
+    friction rows are left as they are). Compiled without contraction: the sums do not
+    depend on where LLVM places them."""
+    force, torque, friction_force, friction_torque, stiffness = out
+    for body in range(first, last):
+        if starts[body] == starts[body + 1]:
+            continue
+        # the body's sums in registers, from what ``out`` holds (same order, same bits)
+        f0, f1, f2 = force[body, 0], force[body, 1], force[body, 2]
+        m0, m1, m2 = torque[body, 0], torque[body, 1], torque[body, 2]
+        g0, g1, g2 = friction_force[body, 0], friction_force[body, 1], friction_force[body, 2]
+        h0, h1, h2 = friction_torque[body, 0], friction_torque[body, 1], friction_torque[body, 2]
+        s0, s1, s2 = stiffness[body, 0], stiffness[body, 1], stiffness[body, 2]
+        o0, o1, o2 = origins[body, 0], origins[body, 1], origins[body, 2]
+        for e in range(starts[body], starts[body + 1]):
+            q, side = entries[e] >> 1, entries[e] & 1
+            sign = 1.0 if side == 1 else -1.0
+            for c in range(offsets[q], offsets[q + 1]):
+                if terms[c, ACTIVE] == 0.0:
+                    continue
+                r0, r1, r2 = points[c, 0] - o0, points[c, 1] - o1, points[c, 2] - o2
+                n = NORMAL_FORCE
+                x0, x1, x2 = sign * terms[c, n], sign * terms[c, n + 1], sign * terms[c, n + 2]
+                f0, f1, f2 = f0 + x0, f1 + x1, f2 + x2
+                m0 += r1 * x2 - r2 * x1
+                m1 += r2 * x0 - r0 * x2
+                m2 += r0 * x1 - r1 * x0
+                s0 += terms[c, SPRING_SLOPE]
+                s2 += terms[c, NORMAL_MAGNITUDE]
+                if friction:
+                    t = FRICTION_FORCE
+                    y0, y1, y2 = sign * terms[c, t], sign * terms[c, t + 1], sign * terms[c, t + 2]
+                    g0, g1, g2 = g0 + y0, g1 + y1, g2 + y2
+                    h0 += r1 * y2 - r2 * y1
+                    h1 += r2 * y0 - r0 * y2
+                    h2 += r0 * y1 - r1 * y0
+                    s1 += terms[c, FRICTION_SLOPE]
+                    s2 += terms[c, FRICTION_MAGNITUDE]
+        force[body, 0], force[body, 1], force[body, 2] = f0, f1, f2
+        torque[body, 0], torque[body, 1], torque[body, 2] = m0, m1, m2
+        friction_force[body, 0], friction_force[body, 1], friction_force[body, 2] = g0, g1, g2
+        friction_torque[body, 0], friction_torque[body, 1], friction_torque[body, 2] = h0, h1, h2
+        stiffness[body, 0], stiffness[body, 1], stiffness[body, 2] = s0, s1, s2
+
+
+@njit(**EXACT_JIT)
+def elastic_energy(terms):
+    """The summed elastic energy of the acting contacts of ``terms (c, TERMS)``, in
+    contact order."""
+    energy = 0.0
+    for c in range(terms.shape[0]):
+        if terms[c, ACTIVE] != 0.0:
+            energy += terms[c, ENERGY]
     return energy
 
 
@@ -145,15 +240,3 @@ def _norm(rows, b):
 @njit(**JIT)
 def _size(rows, b, least):
     return max(_norm(rows, b), least)
-
-
-@njit(**JIT)
-def _apply(force, torque, origins, body, p0, p1, p2, g0, g1, g2):
-    """Add force ``g`` at point ``p`` to ``body`` (moment about ``origins[body]``)."""
-    r0, r1, r2 = p0 - origins[body, 0], p1 - origins[body, 1], p2 - origins[body, 2]
-    force[body, 0] += g0
-    force[body, 1] += g1
-    force[body, 2] += g2
-    torque[body, 0] += r1 * g2 - r2 * g1
-    torque[body, 1] += r2 * g0 - r0 * g2
-    torque[body, 2] += r0 * g1 - r1 * g0

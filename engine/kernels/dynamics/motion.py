@@ -26,6 +26,60 @@ def rotation_matrices(orientations, out):
 
 
 @njit(**JIT)
+def placed_bodies(positions, orientations, centers, spheres, limit, first, last, out):
+    """Place bodies ``first:last``: ``out = (origins, centres)``, each ``(n, 3)`` float64,
+    receives each body's mesh-frame origin x − R·c and the world centre origin + R·s of its
+    root bounding sphere, for ``positions (n, 3)``, unit ``orientations (n, 4)`` (R: their
+    rotations), ``centers (n, 3)`` (centres of mass, mesh frame) and ``spheres (n, ≥3)``
+    (root sphere centres, mesh frame). Returns the first of these bodies with a centre
+    coordinate that is not finite within ±``limit``, else −1."""
+    origins, centres = out
+    rot = np.empty((3, 3))
+    bad = -1
+    for b in range(first, last):
+        quaternion_rotation(orientations[b], rot)
+        for i in range(3):
+            turned = rot[i, 0] * centers[b, 0] + rot[i, 1] * centers[b, 1]
+            origins[b, i] = positions[b, i] - (turned + rot[i, 2] * centers[b, 2])
+        for i in range(3):
+            turned = rot[i, 0] * spheres[b, 0] + rot[i, 1] * spheres[b, 1]
+            centres[b, i] = origins[b, i] + (turned + rot[i, 2] * spheres[b, 2])
+            if bad < 0 and not abs(centres[b, i]) <= limit:  # NaN fails too
+                bad = b
+    return bad
+
+
+@njit(**JIT)
+def surface_speeds(velocities, angular_velocities, radius, out):
+    """``out (n,)`` float64: each body's largest surface speed bound |v| + |ω|·R for
+    ``velocities``, ``angular_velocities (n, 3)`` and bounding ``radius (n,)`` float64."""
+    for b in range(velocities.shape[0]):
+        v0, v1, v2 = velocities[b, 0], velocities[b, 1], velocities[b, 2]
+        w0, w1, w2 = angular_velocities[b, 0], angular_velocities[b, 1], angular_velocities[b, 2]
+        linear = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        out[b] = linear + radius[b] * np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+
+
+@njit(**JIT)
+def largest_travel(velocities, angular_velocities, radius, epsilon, fixed, dt):
+    """``(ratio, body)``: the largest (|v| + |ω|·R)·|dt| / ε over the bodies that are not
+    ``fixed (n,)`` bool, and the first body that has it (−1 for none); arrays as
+    :func:`surface_speeds`, ``epsilon (n,)`` float64."""
+    largest, body = 0.0, -1
+    for b in range(velocities.shape[0]):
+        if fixed[b]:
+            continue
+        v0, v1, v2 = velocities[b, 0], velocities[b, 1], velocities[b, 2]
+        w0, w1, w2 = angular_velocities[b, 0], angular_velocities[b, 1], angular_velocities[b, 2]
+        linear = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        speed = linear + radius[b] * np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        ratio = speed * abs(dt) / epsilon[b]
+        if body < 0 or ratio > largest:
+            largest, body = ratio, b
+    return largest, body
+
+
+@njit(**JIT)
 def advance(start, force, torque, inverse_mass, inertia_body, inverse_inertia, dt, out):
     """One Euler update from the step's start: ``v' = v + dt·F/m``, ``L' = L + dt·τ``,
     ``x' = x + dt·v'``, ``q' = exp(dt·ω̄/2)·q`` with ω̄ = I_w(q)⁻¹L', then ω' = I_w(q')⁻¹L'.

@@ -105,12 +105,14 @@ def test_the_batched_search_names_an_orientation_that_is_not_a_unit_quaternion()
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_queries_are_gathered_and_renormalised_as_numpy_does(seed):
-    """The one-pass gather of a configuration's queries gives numpy's bits: norms within
-    1e-6 of 1 divided out as ``q / np.linalg.norm(q, axis=1)``, rows gathered per pair;
-    NaN and off-unit orientations are named."""
-    from engine.kernels.collision import batch as kb
+def test_queries_are_gathered_and_renormalised_as_numpy_does(seed, monkeypatch):
+    """The gather of a configuration's queries, in parts on worker threads (parts of 37
+    rows here), gives numpy's bits: norms within 1e-6 of 1 divided out as
+    ``q / np.linalg.norm(q, axis=1)``, rows gathered per pair; the first NaN or off-unit
+    orientation is named."""
+    import engine.collision.configuration as configuration
 
+    monkeypatch.setattr(configuration, "_ROWS_PER_PART", 37)
     rng = np.random.default_rng(seed)
     n, k = 500, 2000
     q = rng.normal(size=(n, 4))
@@ -118,11 +120,7 @@ def test_queries_are_gathered_and_renormalised_as_numpy_does(seed):
     q *= 1 + rng.uniform(-9e-7, 9e-7, (n, 1))  # off by up to 0.9e-6: renormalised
     origins, tree_index = rng.normal(size=(n, 3)), rng.integers(0, 7, n)
     pairs = np.sort(rng.integers(0, n, (k, 2)), axis=1)
-    out = kb.PairQueries(*(np.empty(shape, dtype) for shape, dtype in [
-        (k, np.int64), (k, np.int64), ((k, 3), float), ((k, 4), float), ((k, 3), float),
-        ((k, 4), float),
-    ]))  # fmt: skip
-    assert kb.gather_queries(pairs, tree_index, origins, q, out) == -1
+    out = configuration.gathered_queries(pairs, tree_index, origins, q, 3)
     unit = q / np.linalg.norm(q, axis=1)[:, None]
     a, b = pairs[:, 0], pairs[:, 1]
     want = (tree_index[a], tree_index[b], origins[a], unit[a], origins[b], unit[b])
@@ -131,7 +129,40 @@ def test_queries_are_gathered_and_renormalised_as_numpy_does(seed):
     for bad, value in ((17, np.nan), (400, 1.01)):
         off = q.copy()
         off[bad] *= value
-        assert kb.gather_queries(pairs, tree_index, origins, off, out) == bad
+        off[bad + 60] *= value  # a later one, in another part
+        with pytest.raises(InvalidArgumentError, match=rf"orientations\[{bad}\]"):
+            configuration.gathered_queries(pairs, tree_index, origins, off, 3)
+
+
+def test_bodies_placed_in_parts_are_one_threads_and_the_first_bad_one_is_named(monkeypatch):
+    """Origins and broad-phase pairs of bodies placed in parts on worker threads (one body
+    a part here) are one thread's bit for bit and x − R·c; the first body of several whose
+    position is not finite is named."""
+    import engine.scene as scene_module
+    from engine import workers
+    from engine.kernels.dynamics.motion import rotation_matrices
+
+    scene = pile()
+    scene.threads = 1
+    x, q = scene.positions, scene.orientations
+    origins, pairs = scene.configuration(x, q)
+    monkeypatch.setattr(
+        scene_module,
+        "in_parts",
+        lambda threads, rows, task: workers.in_parts(threads, rows, task, 1),
+    )
+    scene.threads = 3
+    parted = scene.configuration(x, q)
+    np.testing.assert_array_equal(parted[0], origins)
+    np.testing.assert_array_equal(parted[1], pairs)
+    rot = np.empty((len(scene), 3, 3))
+    rotation_matrices(q, rot)
+    np.testing.assert_allclose(origins, x - (rot @ scene.centers[:, :, None])[:, :, 0], atol=1e-15)
+    assert len(pairs) >= 4
+    x = x.copy()
+    x[3, 1], x[1, 2] = np.inf, np.nan
+    with pytest.raises(InvalidArgumentError, match="body 1 is not at a finite position"):
+        scene.configuration(x, q)
 
 
 def test_no_candidate_pairs_give_empty_contacts():

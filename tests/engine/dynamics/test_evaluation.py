@@ -14,12 +14,14 @@ import math
 import numpy as np
 import pytest
 
-from engine import PaperSpring, Scene, shapes
+from engine import HertzSpring, LinearSpring, PaperSpring, Scene, shapes
+from engine.collision.configuration import Contacts
 from engine.dynamics.bodies import body_terms
 from engine.dynamics.evaluation import (
     Evaluation,
     WarmStart,
     Wrench,
+    contact_forces,
     cross,
     evaluate,
     evaluation_key,
@@ -87,23 +89,38 @@ def by_hand(scene: Scene, state, origins, law=LAW, found=None) -> dict:
     approach speed, regularised Coulomb friction; a fixed body's mass is infinite)."""
     x, q, v, w = state
     found = scene.contacts(x, q, False) if found is None else found
+    return summed(found, (x, v, w, origins), (scene.masses, scene.epsilon), law)
+
+
+def summed(found, state, params, law) -> dict:
+    """:func:`by_hand` for any contacts ``found`` of bodies in ``state = (positions,
+    velocities, angular velocities, lever origins)`` with ``params = (masses, epsilon)``."""
+    x, v, w, origins = state
+    masses, eps = params
     n = len(x)
     normal, friction = np.zeros((n, 2, 3)), np.zeros((n, 2, 3))  # [:, 0] force, [:, 1] torque
     stiffness, energy = np.zeros((n, 3)), 0.0
-    eps = scene.epsilon
-    _, k, zeta, mu, v_slip = law.parameters()
+    kind, k, zeta, mu, v_slip = law.parameters()
     for pair, (a, b) in enumerate(found.bodies):
-        ma, mb = scene.masses[a], scene.masses[b]
+        ma, mb = masses[a], masses[b]
         m_red = mb if math.isinf(ma) else ma if math.isinf(mb) else ma * mb / (ma + mb)
         for c in range(found.offsets[pair], found.offsets[pair + 1]):
             delta, nrm, p = found.overlaps[c], found.normals[c], found.points[c]
             if delta <= 0:
                 continue
-            k_eff = k * math.sqrt(m_red) / (eps[a] + eps[b])
-            energy += 0.5 * k_eff * delta**2
+            if kind == PaperSpring.kind:  # K_s·δ/(ε_a + ε_b)·√m_red
+                k_eff = k * math.sqrt(m_red) / (eps[a] + eps[b])
+                energy += 0.5 * k_eff * delta**2
+            elif kind == LinearSpring.kind:  # k·δ
+                k_eff = k
+                energy += 0.5 * k * delta**2
+            else:  # k·δ^{3/2}
+                k_eff = 1.5 * k * math.sqrt(delta)
+                energy += 0.4 * k * delta**2.5
             u = (v[b] + np.cross(w[b], p - x[b])) - (v[a] + np.cross(w[a], p - x[a]))
             v_n = float(u @ nrm)
-            f_n = max(k_eff * delta - 2 * zeta * math.sqrt(k_eff * m_red) * v_n, 0.0)
+            spring = k_eff * delta if kind != HertzSpring.kind else k * delta**1.5
+            f_n = max(spring - 2 * zeta * math.sqrt(k_eff * m_red) * v_n, 0.0)
             slide = u - v_n * nrm
             g = -mu * f_n * slide / math.sqrt(slide @ slide + v_slip**2)
             for body, sign in ((b, 1.0), (a, -1.0)):
@@ -248,6 +265,64 @@ def test_no_contact_leaves_the_constant_forces_only():
     np.testing.assert_array_equal(result.normal.force, body_terms(scene).force)
     for array in (result.normal.torque, *result.friction, result.stiffness):
         np.testing.assert_array_equal(array, 0.0)
+
+
+def random_contacts(seed: int, n: int = 40, pairs: int = 150):
+    """Contacts of ``pairs`` distinct body pairs among ``n`` bodies (0 to 3 each, some not
+    overlapping), a state and ``(masses, epsilon)`` with three fixed bodies."""
+    rng = np.random.default_rng(seed)
+    masses = rng.uniform(0.5, 2.0, n)
+    masses[:3] = np.inf  # no pair of two fixed bodies: the broad phase leaves them out
+    every = np.array([(a, b) for a in range(n) for b in range(max(a + 1, 3), n)], np.int64)
+    bodies = every[np.sort(rng.choice(len(every), pairs, replace=False))]
+    offsets = np.concatenate([[0], np.cumsum(rng.integers(0, 4, pairs))]).astype(np.int64)
+    c = int(offsets[-1])
+    normals = rng.normal(size=(c, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    found = Contacts(
+        bodies, offsets, rng.normal(size=(c, 3)), normals, rng.uniform(-0.005, 0.02, c), {}
+    )
+    state = tuple(rng.normal(size=(n, 3)) for _ in range(4))
+    return found, state, (masses, rng.uniform(0.005, 0.02, n))
+
+
+@pytest.mark.parametrize(
+    "law",
+    [
+        PaperSpring(damping=0.3, friction=0.5),
+        LinearSpring(stiffness=500.0, damping=0.1, friction=0.0),
+        HertzSpring(stiffness=2e4, damping=0.2, friction=0.8, slip_velocity=0.05),
+    ],
+)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_contact_forces_in_parts_are_one_threads_bits_and_the_law(law, seed, monkeypatch):
+    """Contact forces summed in parts of pairs and of bodies on worker threads (parts of 3
+    pairs and 2 bodies here) are the one-thread sums bit for bit, and the law summed by
+    hand contact by contact."""
+    import engine.dynamics.evaluation as evaluation
+
+    found, state, params = random_contacts(seed)
+    n = len(state[0])
+
+    def forces(threads: int):
+        out = tuple(np.zeros((n, 3)) for _ in range(5))
+        energy = contact_forces(found, state, params, law.parameters(), out, threads)
+        return out, energy
+
+    one, energy = forces(1)
+    monkeypatch.setattr(evaluation, "_PAIRS_PER_PART", 3)
+    monkeypatch.setattr(evaluation, "_BODIES_PER_PART", 2)
+    parts, energy_parts = forces(4)
+    for a, b in zip(one, parts, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert energy_parts == energy
+    expected = summed(found, state, params, law)
+    scale = np.abs(expected["normal"]).max()
+    assert_wrench(Wrench(*one[:2]), expected["normal"], scale)
+    assert_wrench(Wrench(*one[2:4]), expected["friction"], scale)
+    np.testing.assert_allclose(one[4], expected["stiffness"], rtol=1e-12, atol=1e-12 * scale)
+    assert energy == pytest.approx(expected["energy"], rel=1e-12)
+    assert np.abs(one[2]).max() > 0 if law.friction > 0 else not one[2].any()
 
 
 # ------------------------------------------------------------------ evaluation_key

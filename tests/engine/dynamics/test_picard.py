@@ -219,7 +219,9 @@ def test_bodies_advanced_in_parts_on_threads_match_one_thread(scheme, monkeypatc
 
     one = run(1)
     monkeypatch.setattr(
-        picard, "in_parts", lambda threads, rows, task: workers.in_parts(threads, rows, task, 1)
+        picard,
+        "in_parts",
+        lambda threads, rows, task, least: workers.in_parts(threads, rows, task, 1),
     )
     parts = run(3)
     for name in ("positions", "orientations", "velocities", "angular_velocities"):
