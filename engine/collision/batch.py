@@ -34,7 +34,8 @@ __all__ = ["ContactBatch", "TreeBank", "find_contacts_batch"]
 MAX_LEVELS = 32
 """Per-level comparison counts kept per pair (deeper levels are counted, not kept)."""
 _PAIRS_PER_TASK = 64  # below this many pairs per worker, one thread is faster
-_CHUNKS_PER_THREAD = 4  # chunks of pairs a worker thread takes in turn, on average
+_CHUNKS_PER_THREAD = 8  # chunks of pairs a worker thread takes in turn, on average (4: 13 of 16
+# threads busy on the grid, 8: 14.5; BENCHMARKS.md, issue 15, thirteenth step)
 
 
 @dataclass(frozen=True)

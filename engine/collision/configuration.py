@@ -31,7 +31,7 @@ __all__ = [
     "gathered_queries",
 ]
 
-_ROWS_PER_PART = 4096  # bodies or pairs a worker thread gathers at least
+_ROWS_PER_PART = 8192  # pairs a worker thread gathers at least (~0.06 ms)
 
 SEARCH_COUNTERS = (
     "comparisons",
@@ -110,27 +110,20 @@ def gathered_queries(
 ) -> kb.PairQueries:
     """The :class:`~engine.kernels.collision.batch.PairQueries` of body ``pairs (k, 2)``
     int64 (arguments as :func:`batched_contacts`): orientations renormalised as numpy's
-    ``q / np.linalg.norm(q)`` rounds it, rows gathered per pair, each in parts on the
-    worker threads (``threads``; None: all cores). An orientation whose norm is not within
+    ``q / np.linalg.norm(q)`` rounds it, rows gathered per pair in parts on the worker
+    threads (``threads``; None: all cores). An orientation whose norm is not within
     1e-6 of 1 raises :class:`~engine.errors.InvalidArgumentError` naming the first."""
     k, n = len(pairs), len(orientations)
     queries = kb.PairQueries(
         np.empty(k, np.int64), np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 4)),
         np.empty((k, 3)), np.empty((k, 4)),
     )  # fmt: skip
-    unit, bad = np.empty((n, 4)), []
-
-    def units(first: int, last: int) -> None:
-        found = kb.unit_orientations(orientations, first, last, unit)
-        if found >= 0:
-            bad.append(found)
-
-    in_parts(threads, n, units, least=_ROWS_PER_PART)
-    if bad:
-        first = min(bad)
-        norm = float(np.linalg.norm(orientations[first]))
+    unit = np.empty((n, 4))
+    bad = kb.unit_orientations(orientations, unit)  # 0.1 ms for 24,576 bodies
+    if bad >= 0:
+        norm = float(np.linalg.norm(orientations[bad]))
         raise InvalidArgumentError(
-            f"orientations[{first}] must be a unit quaternion; its norm is {norm:.6g}"
+            f"orientations[{bad}] must be a unit quaternion; its norm is {norm:.6g}"
         )
 
     def rows(first: int, last: int) -> None:

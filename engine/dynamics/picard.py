@@ -70,7 +70,7 @@ BETA_MAX = 1.5
 BETA_MIN = 0.01
 _ATOL = 1e-9
 SWITCH_AFTER = 8
-_BODIES_PER_PART = 1024  # bodies a worker thread advances at least (~0.15 ms)
+_BODIES_PER_PART = 2048  # bodies a worker thread advances at least (~0.3 ms)
 """Picard iterations after which a step may settle on a contact-set switch (:func:`_switch`)."""
 NORMAL, FRICTION = 0, 1
 """The two parts of the contact forces a Picard iteration relaxes, each with its weight."""
@@ -465,9 +465,8 @@ def _summary(scene, contacts, counters, energy, converged: bool, iterations: int
     eps = scene.epsilon
     worst = 0.0
     if len(contacts.points):  # each overlap relative to its pair's reach ε_a + ε_b
-        pair = np.repeat(np.arange(len(contacts.bodies)), np.diff(contacts.offsets))
-        reach = eps[contacts.bodies[pair, 0]] + eps[contacts.bodies[pair, 1]]
-        worst = float((contacts.overlaps / reach).max())
+        found = (contacts.bodies, contacts.offsets, contacts.overlaps)
+        worst = float(kf.largest_overlap(*found, eps))
     return {
         "converged": bool(converged),
         "picard_iterations": iterations,

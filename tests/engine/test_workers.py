@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -28,16 +29,22 @@ def test_parts_cover_every_row_once(threads, rows):
     expected = max(1, min(threads or 10**9, rows // 10))
     if threads is not None:
         assert len(calls) == expected
-    if len(calls) == 1:
-        assert calls[0][2] == threading.current_thread().name  # no hand-off for one part
-    else:
-        assert all(c[2].startswith("mrdem-kernel-") for c in calls)
+    first = next(c for c in calls if c[0] == 0)
+    assert first[2] == threading.current_thread().name  # the first part: no hand-off
+    others = [c for c in calls if c[0] > 0]
+    assert all(c[2].startswith("mrdem-kernel-") for c in others)
 
 
-def test_an_error_in_a_part_is_raised_to_the_caller():
+@pytest.mark.parametrize("failing", ["first", "other"])
+def test_an_error_in_a_part_is_raised_to_the_caller_after_every_part_ended(failing):
+    ended = []
+
     def task(a: int, b: int) -> None:
-        if a > 0:
+        if (a == 0) == (failing == "first"):
             raise ValueError(f"part {a}:{b}")
+        time.sleep(0.05)
+        ended.append(a)
 
     with pytest.raises(ValueError, match="part"):
         in_parts(4, 400, task, least=10)
+    assert len(ended) == (3 if failing == "first" else 1)

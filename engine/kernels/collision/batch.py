@@ -85,12 +85,12 @@ class PairQueries(NamedTuple):
 
 
 @njit(**EXACT_JIT)
-def unit_orientations(orientations, first, last, unit):
-    """``unit[i]`` for bodies ``first ≤ i < last``: ``orientations (n, 4)`` float64 divided
+def unit_orientations(orientations, unit):
+    """``unit (n, 4)``: each of ``orientations (n, 4)`` float64 divided
     by its norm as ``q / np.linalg.norm(q)`` rounds it (the sum of squares in numpy's
-    order). Returns the first of these bodies whose orientation's norm is not within 1e-6
-    of 1 (NaN included), else −1."""
-    for i in range(first, last):
+    order). Returns the first body whose orientation's norm is not within 1e-6 of 1 (NaN
+    included), else −1."""
+    for i in range(orientations.shape[0]):
         q0, q1, q2, q3 = (
             orientations[i, 0],
             orientations[i, 1],

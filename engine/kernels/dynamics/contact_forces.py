@@ -205,6 +205,55 @@ def elastic_energy(terms):
 
 
 @njit(**JIT)
+def largest_overlap(bodies, offsets, overlaps, epsilon):
+    """The largest overlap relative to its pair's reach, δ / (ε_a + ε_b), over contacts
+    laid out as :func:`contact_terms` takes them (``epsilon (n,)`` float64); −inf for no
+    contact."""
+    worst = -np.inf
+    for q in range(bodies.shape[0]):
+        reach = epsilon[bodies[q, 0]] + epsilon[bodies[q, 1]]
+        for c in range(offsets[q], offsets[q + 1]):
+            worst = max(worst, overlaps[c] / reach)
+    return worst
+
+
+@njit(**JIT)
+def same_values(a, b):
+    """Whether the flat float64 arrays ``a`` and ``b`` of one length are equal element by
+    element (as ``np.array_equal``: NaN differs from everything), stopping at the first
+    difference."""
+    for i in range(a.shape[0]):  # noqa: SIM110 (a loop that Numba compiles without a generator)
+        if a[i] != b[i]:
+            return False
+    return True
+
+
+@njit(**EXACT_JIT)
+def moved_levers(old, new, normal, body_force, friction, out):
+    """Torques of contact forces taken about lever origins ``new`` instead of ``old``
+    (``(n, 3)`` float64): τ + (o_old − o_new) × F. ``normal = (force, torque)`` holds the
+    normal contact forces plus the constant ``body_force (n, 3)`` (which has no lever
+    here), ``friction = (force, torque)`` the friction; ``out = (normal torque, friction
+    torque)`` receive the moved torques. numpy's arithmetic, operation for operation (no
+    contraction): the same bits as :func:`engine.dynamics.evaluation.cross`."""
+    normal_force, normal_torque = normal
+    friction_force, friction_torque = friction
+    normal_out, friction_out = out
+    for b in range(old.shape[0]):
+        l0, l1, l2 = old[b, 0] - new[b, 0], old[b, 1] - new[b, 1], old[b, 2] - new[b, 2]
+        f0 = normal_force[b, 0] - body_force[b, 0]
+        f1 = normal_force[b, 1] - body_force[b, 1]
+        f2 = normal_force[b, 2] - body_force[b, 2]
+        normal_out[b, 0] = normal_torque[b, 0] + (l1 * f2 - l2 * f1)
+        normal_out[b, 1] = normal_torque[b, 1] + (l2 * f0 - l0 * f2)
+        normal_out[b, 2] = normal_torque[b, 2] + (l0 * f1 - l1 * f0)
+        g0, g1, g2 = friction_force[b, 0], friction_force[b, 1], friction_force[b, 2]
+        friction_out[b, 0] = friction_torque[b, 0] + (l1 * g2 - l2 * g1)
+        friction_out[b, 1] = friction_torque[b, 1] + (l2 * g0 - l0 * g2)
+        friction_out[b, 2] = friction_torque[b, 2] + (l0 * g1 - l1 * g0)
+
+
+@njit(**JIT)
 def settled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol, weight):
     """Picard's convergence test (see ``engine.dynamics.picard._settled``): every free body's
     force mismatch within ``tolerance`` of the forces acting on it, size_f = max(|F|,

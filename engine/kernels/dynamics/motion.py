@@ -26,17 +26,17 @@ def rotation_matrices(orientations, out):
 
 
 @njit(**JIT)
-def placed_bodies(positions, orientations, centers, spheres, limit, first, last, out):
-    """Place bodies ``first:last``: ``out = (origins, centres)``, each ``(n, 3)`` float64,
+def placed_bodies(positions, orientations, centers, spheres, limit, out):
+    """Place the bodies: ``out = (origins, centres)``, each ``(n, 3)`` float64,
     receives each body's mesh-frame origin x − R·c and the world centre origin + R·s of its
     root bounding sphere, for ``positions (n, 3)``, unit ``orientations (n, 4)`` (R: their
     rotations), ``centers (n, 3)`` (centres of mass, mesh frame) and ``spheres (n, ≥3)``
-    (root sphere centres, mesh frame). Returns the first of these bodies with a centre
-    coordinate that is not finite within ±``limit``, else −1."""
+    (root sphere centres, mesh frame). Returns the first body with a centre coordinate
+    that is not finite within ±``limit``, else −1."""
     origins, centres = out
     rot = np.empty((3, 3))
     bad = -1
-    for b in range(first, last):
+    for b in range(positions.shape[0]):
         quaternion_rotation(orientations[b], rot)
         for i in range(3):
             turned = rot[i, 0] * centers[b, 0] + rot[i, 1] * centers[b, 1]

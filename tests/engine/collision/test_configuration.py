@@ -107,12 +107,12 @@ def test_the_batched_search_names_an_orientation_that_is_not_a_unit_quaternion()
 @pytest.mark.parametrize("seed", range(4))
 def test_queries_are_gathered_and_renormalised_as_numpy_does(seed, monkeypatch):
     """The gather of a configuration's queries, in parts on worker threads (parts of 37
-    rows here), gives numpy's bits: norms within 1e-6 of 1 divided out as
+    pairs here), gives numpy's bits: norms within 1e-6 of 1 divided out as
     ``q / np.linalg.norm(q, axis=1)``, rows gathered per pair; the first NaN or off-unit
     orientation is named."""
     import engine.collision.configuration as configuration
 
-    monkeypatch.setattr(configuration, "_ROWS_PER_PART", 37)
+    monkeypatch.setattr(configuration, "_ROWS_PER_PART", 37)  # parts of 37 pairs
     rng = np.random.default_rng(seed)
     n, k = 500, 2000
     q = rng.normal(size=(n, 4))
@@ -129,32 +129,19 @@ def test_queries_are_gathered_and_renormalised_as_numpy_does(seed, monkeypatch):
     for bad, value in ((17, np.nan), (400, 1.01)):
         off = q.copy()
         off[bad] *= value
-        off[bad + 60] *= value  # a later one, in another part
+        off[bad + 60] *= value  # a later one
         with pytest.raises(InvalidArgumentError, match=rf"orientations\[{bad}\]"):
             configuration.gathered_queries(pairs, tree_index, origins, off, 3)
 
 
-def test_bodies_placed_in_parts_are_one_threads_and_the_first_bad_one_is_named(monkeypatch):
-    """Origins and broad-phase pairs of bodies placed in parts on worker threads (one body
-    a part here) are one thread's bit for bit and x − R·c; the first body of several whose
-    position is not finite is named."""
-    import engine.scene as scene_module
-    from engine import workers
+def test_bodies_are_placed_at_x_minus_r_c_and_the_first_bad_one_is_named():
+    """Each body's mesh-frame origin is x − R·c; the first body of several whose position
+    is not finite is named."""
     from engine.kernels.dynamics.motion import rotation_matrices
 
     scene = pile()
-    scene.threads = 1
     x, q = scene.positions, scene.orientations
     origins, pairs = scene.configuration(x, q)
-    monkeypatch.setattr(
-        scene_module,
-        "in_parts",
-        lambda threads, rows, task: workers.in_parts(threads, rows, task, 1),
-    )
-    scene.threads = 3
-    parted = scene.configuration(x, q)
-    np.testing.assert_array_equal(parted[0], origins)
-    np.testing.assert_array_equal(parted[1], pairs)
     rot = np.empty((len(scene), 3, 3))
     rotation_matrices(q, rot)
     np.testing.assert_allclose(origins, x - (rot @ scene.centers[:, :, None])[:, :, 0], atol=1e-15)

@@ -23,8 +23,9 @@ def trees():
 
 @pytest.fixture
 def many_chunks(monkeypatch):
-    """Chunks of 4 pairs, and every join on the worker threads."""
+    """Chunks of 4 pairs (at most 4 a thread), and every join on the worker threads."""
     monkeypatch.setattr(batch, "_PAIRS_PER_TASK", 4)
+    monkeypatch.setattr(batch, "_CHUNKS_PER_THREAD", 4)
     monkeypatch.setattr(pair_cache, "PARALLEL_JOIN", 0)
 
 
