@@ -270,6 +270,53 @@ def test_result_is_a_frozen_dataclass():
     assert set(vars(result)) == {f.name for f in dataclasses.fields(MeshDistance)}
 
 
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_the_kernels_entry_point_gets_the_types_it_was_compiled_for(precision):
+    """``mesh_distance`` calls the distance kernel's compiled entry point directly for exact
+    types: the trees' rows and the poses' packed arrays must have the types it was compiled
+    for however the tree or the pose was made, or it would read memory wrongly."""
+    import copy
+    import io
+    import pickle
+
+    import numba
+
+    from engine.collision import proximity
+    from engine.trees.tree import SurrogateTree
+
+    mesh, built = body("ico80")
+    buffer = io.BytesIO()
+    built.save(buffer)
+    buffer.seek(0)
+    loaded = SurrogateTree.load(buffer)
+    pose = Pose([0.5, -0.2, 2.0], [0.8, 0.0, 0.6, 0.0])
+    poses = [
+        pose,
+        Pose.identity(),
+        pose.inverse(),
+        pose.compose(pose),
+        pickle.loads(pickle.dumps(pose)),
+        copy.copy(pose),
+        copy.deepcopy(pose),
+        dataclasses.replace(pose, position=[1.0, 2.0, 3.0]),
+    ]
+    dtype = np.dtype(precision).type
+    entry = proximity._compiled_kernel(dtype)
+    for tree in (built, loaded):
+        rows = tree.views.kernel_distance_rows
+        prepared = rows if precision == "float64" else tree.views.kernel_prepared_rows(precision)
+        for other in poses:
+            args = (prepared, rows, rows, other._packed, pose._packed, np.empty((2, 3)))
+            key = tuple(numba.typeof(x) for x in args)
+            assert ds.distance_kernel.overloads[key].entry_point is entry
+            dispatched, points = ds.distance_kernel(*args), args[-1].copy()
+            assert entry(*args) == dispatched
+            np.testing.assert_array_equal(args[-1], points)
+            result = mesh_distance(tree, other, tree, pose, precision)
+            assert result.distance == dispatched[0]
+            np.testing.assert_array_equal(result.closest_points, points)
+
+
 def test_bad_arguments():
     _, tree = body("ico80")
     pose = Pose.identity()
