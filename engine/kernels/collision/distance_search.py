@@ -105,7 +105,7 @@ Node arrays of a tree (``N`` nodes, node order, root at row 0), row-major:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import carray, njit
 
 from engine.kernels.collision.batch import packed_relative_pose, query_margin
 from engine.kernels.collision.distance_bounds import (  # noqa: F401 (columns re-exported)
@@ -132,7 +132,7 @@ from engine.kernels.collision.distance_bounds import (  # noqa: F401 (columns re
 )
 from engine.kernels.geometry.triangle_batch import ZERO
 from engine.kernels.geometry.triangle_points import exact_paired, exact_point
-from engine.kernels.jit import BORROW, EXACT_BORROW, JIT
+from engine.kernels.jit import BORROW, EXACT_BORROW, JIT, stack_buffer
 
 N_COLUMNS = BOX + N_BOX
 # Fields of the tuple returned by :func:`distance_kernel`.
@@ -144,11 +144,22 @@ BOTH = 0.5  # unfold both nodes of a pair when their spheres are this close in s
 POPS = 8  # pairs refined together
 
 
+# sizes of the buffers a query keeps in its kernels' stack frames (``stack_buffer``)
+GATHERED_ROWS = 47  # a gathered pair: A (9), A's frames (14), B (9), B's frames (14), distance
+HEAP_INTS = 5 * HEAP_START
+CHILD_INTS = 2 * CHILDREN_START
+POPS_GATHERED = GATHERED_ROWS * POPS
+LANES = 2 * POPS
+KEEP_START = 8  # children of one node kept by the parent test (grown when needed)
+KEEP_INTS = 2 * KEEP_START
+PLACED_SIZE = PLACED * (KEEP_START + 1)
+LOWS_SIZE = KEEP_START * (KEEP_START + 1)
+
+
 @njit(**JIT)
-def _gathered(m, dtype):
-    """Buffers for ``m`` gathered pairs, one allocation: ``(A (9, m), A's frames (14, m),
-    B (9, m), B's frames (14, m), distances (m,))``, C-contiguous views, ``dtype``."""
-    g = np.empty((47, m), dtype)
+def _gathered(g):
+    """Views of ``g (47, m)`` (C-contiguous), the buffers for ``m`` gathered pairs:
+    ``(A (9, m), A's frames (14, m), B (9, m), B's frames (14, m), distances (m,))``."""
     return g[0:9], g[9:23], g[23:32], g[32:46], g[46]
 
 
@@ -305,18 +316,26 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     of the leaf pair (``best_i``, ``best_j``); returns ``(best, best_i, best_j, pairs,
     exact, unfolded, largest, pruned)``."""
     pairs = exact = unfolded = pruned = ZERO
-    key = np.empty(HEAP_START)
+    # every buffer in this frame (stack_buffer: no allocation, release or reference
+    # counts; one grown past its start is replaced by an np.empty one)
+    key = carray(stack_buffer(HEAP_START, np.float64), (HEAP_START,))
     # per entry: A's node, B's node, refined; the heap; the stack
-    ints = np.empty((5, HEAP_START), np.int64)
+    ints = carray(stack_buffer(HEAP_INTS, np.int64), (5, HEAP_START))
     entry_a, entry_b, refined, heap, stack = ints[0], ints[1], ints[2], ints[3], ints[4]
-    ga, gfa, gb, gfb, dist = _gathered(POPS, prepared_a.dtype)
-    batch = np.empty(POPS, np.int64)  # the entries refined together
-    lane = np.empty((2, POPS), np.int64)  # the leaf pairs evaluated together in the dive
-    child_low = np.empty(CHILDREN_START)  # child pairs of an unfolded pair: bound, A's, B's
-    child = np.empty((2, CHILDREN_START), np.int64)
-    keep = np.empty((2, 8), np.int64)  # children kept by the parent test
-    placed = np.empty((PLACED, 9))  # B's nodes of an unfolded pair, moved (+ B's parent)
-    lows = np.empty((8, 9))  # bounds of the A children against them
+    gathered = stack_buffer(POPS_GATHERED, prepared_a.dtype)
+    ga, gfa, gb, gfb, dist = _gathered(carray(gathered, (GATHERED_ROWS, POPS)))
+    batch = carray(stack_buffer(POPS, np.int64), (POPS,))  # the entries refined together
+    # the leaf pairs evaluated together in the dive
+    lane = carray(stack_buffer(LANES, np.int64), (2, POPS))
+    # child pairs of an unfolded pair: bound, A's, B's
+    child_low = carray(stack_buffer(CHILDREN_START, np.float64), (CHILDREN_START,))
+    child = carray(stack_buffer(CHILD_INTS, np.int64), (2, CHILDREN_START))
+    # children kept by the parent test
+    keep = carray(stack_buffer(KEEP_INTS, np.int64), (2, KEEP_START))
+    # B's nodes of an unfolded pair, moved (+ B's parent)
+    placed = carray(stack_buffer(PLACED_SIZE, np.float64), (PLACED, KEEP_START + 1))
+    # bounds of the A children against them
+    lows = carray(stack_buffer(LOWS_SIZE, np.float64), (KEEP_START, KEEP_START + 1))
     key[0] = max(node_bound(a, ZERO, b, ZERO, r, s, np.inf, margin), 0.0)
     entry_a[0], entry_b[0], refined[0] = 0, 0, 0
     entries = size = depth = ZERO
@@ -519,7 +538,9 @@ def distance_kernel(prepared_a, a, b, pose_a, pose_b, points):
     evaluated, pairs unfolded, the largest front (heap and stack), child pairs dropped by
     their sphere or box bound.
     """
-    ga, gfa, gb, gfb, dist = _gathered(1, prepared_a.dtype)  # one pair, for the descents
+    # one pair, for the descents, in this frame
+    one_pair = carray(stack_buffer(GATHERED_ROWS, prepared_a.dtype), (GATHERED_ROWS, 1))
+    ga, gfa, gb, gfb, dist = _gathered(one_pair)
     dist[0] = 1
     one = dist[0]  # (the query dtype's 1, no array made for it)
     ulp = np.float64(np.nextafter(one, one + one) - one)  # the query dtype's epsilon
