@@ -51,6 +51,9 @@ iteration (111 ns). Long loops pay for the masks (the cull on 256 pairs: 545 →
 the row kernels stay unmasked (``benchmarks/block_kernels.py``; BENCHMARKS.md, issue 15,
 eleventh step).
 
+:func:`stack_buffer` gives a kernel buffers in its own stack frame (no allocation,
+release or atomic reference counts), for fixed-size working arrays that never leave it.
+
 Numba's on-disk cache is keyed on the timestamp of the file that defines a
 kernel, but these kernels inline helpers from sibling files: an edit there
 would leave stale machine code in use. The cache directory therefore carries
@@ -218,7 +221,8 @@ def sqrt(typingctx, x):
 
 @intrinsic(prefer_literal=True)
 def stack_buffer(typingctx, count, dtype):
-    """Room for ``count`` (a compile-time constant) elements of ``dtype`` in the calling
+    """Room for ``count`` (a compile-time constant: a literal or a global name; an
+    expression is typed as a run-time integer, and refused) elements of ``dtype`` in the calling
     kernel's stack frame, uninitialised, as a pointer for ``numba.carray``: an array with
     no allocation, no release and no atomic reference counts (it has no meminfo; Numba's
     reference counting skips a null one). Measured: four buffers of a small kernel, 357 →

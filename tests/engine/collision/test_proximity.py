@@ -39,6 +39,7 @@ from engine.kernels.collision.rigid import move_kernel
 MESHES = {
     "ico80": lambda: shapes.icosphere(1),
     "ico320": lambda: shapes.icosphere(2, radius=0.8),
+    "ico1280": lambda: shapes.icosphere(3),
     "torus": lambda: shapes.torus(1.0, 0.3, 16, 8),
     "noisy": lambda: shapes.noisy_sphere(subdivisions=1, eta_r=1.4, seed=3),
     "box": lambda: shapes.box((1.6, 1.0, 0.6)),
@@ -227,6 +228,31 @@ def test_interlocked_tori(gap):
 def test_icospheres_side_by_side(gap):
     """The benchmark's poses (many face pairs tie at the minimum: vertex against vertex)."""
     check_against_oracle("ico80", Pose.identity(), "ico80", Pose([2 + gap, 0, 0], [1, 0, 0, 0]))
+
+
+def test_a_front_past_the_kernels_stack_buffers_grows_them():
+    """Far apart, 1,280-triangle icospheres keep more node pairs waiting than the search's
+    heap starts with in its stack frame (``HEAP_START``): it grows onto the heap, and the
+    answer is still the minimum over the face pairs that face each other (the faces of
+    either sphere on its side towards the other: every other pair is farther)."""
+    mesh, tree = body("ico1280")
+    pose_b = Pose([3.0, 0, 0], [1, 0, 0, 0])
+    result = mesh_distance(tree, Pose.identity(), tree, pose_b)
+    assert result.largest_front > ds.HEAP_START
+    tri_a, tri_b = posed(mesh, Pose.identity()), posed(mesh, pose_b)
+    near_a = np.flatnonzero(tri_a[:, :, 0].mean(axis=1) > 0.5)
+    near_b = np.flatnonzero(tri_b[:, :, 0].mean(axis=1) < 2.5)
+    found = triangle_distances(
+        np.repeat(tri_a[near_a], len(near_b), axis=0),
+        np.tile(tri_b[near_b], (len(near_a), 1, 1)),
+        kernel="exact",
+    )
+    d = found.distance.reshape(len(near_a), len(near_b))
+    assert result.distance == pytest.approx(d.min(), rel=1e-12)
+    at = (near_a == result.face_a, near_b == result.face_b)
+    assert d[np.flatnonzero(at[0])[0], np.flatnonzero(at[1])[0]] == pytest.approx(
+        d.min(), rel=1e-12
+    )
 
 
 @pytest.mark.parametrize("pair", PAIRS[:4])

@@ -81,3 +81,38 @@ def test_only_tail_masked_kernels_run_their_last_lanes_masked():
     x, out = np.arange(5.0), np.zeros(5)
     masked(x, 5, out)
     np.testing.assert_array_equal(out, 2.5 * x)
+
+
+STACK_ROWS = 4
+STACK_SIZE = 2 * STACK_ROWS  # a constant: an expression in the kernel is not one
+
+
+@numba.njit
+def _stacked(values, rows):
+    """Sums of ``values`` in ``rows`` slots: a (STACK_ROWS, 2) buffer in the frame, replaced
+    by a heap array when ``rows`` is larger."""
+    buffer = numba.carray(jit.stack_buffer(STACK_SIZE, np.float64), (STACK_ROWS, 2))
+    if rows > STACK_ROWS:
+        buffer = np.empty((rows, 2))
+    buffer[:rows] = 0.0
+    for k in range(values.shape[0]):
+        buffer[k % rows, 0] += values[k]
+        buffer[k % rows, 1] += 1.0
+    return buffer[:rows].copy()
+
+
+@pytest.mark.parametrize("rows", [1, STACK_ROWS, STACK_ROWS + 3])
+def test_a_stack_buffer_holds_what_is_written_and_can_be_replaced_by_a_heap_one(rows):
+    values = np.arange(1.0, 23.0)
+    got = _stacked(values, rows)
+    for r in range(rows):
+        np.testing.assert_array_equal(got[r], [values[r::rows].sum(), len(values[r::rows])])
+
+
+def test_a_stack_buffer_needs_a_constant_positive_size():
+    @numba.njit
+    def sized(n):
+        return numba.carray(jit.stack_buffer(n, np.float64), (1,))[0]
+
+    with pytest.raises(numba.core.errors.TypingError):
+        sized(4)
