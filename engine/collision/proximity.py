@@ -26,9 +26,10 @@ those whose bound is ≤ 0): child pairs get the cheap
 sphere and box bounds when their parent unfolds, and the exact distance of the two node
 triangles less their g only when they reach the top of the heap (vectorised over up to 8
 pairs); leaf pairs at the top are evaluated with the exact kernel the same way (in
-``precision``, on B's triangles moved as the contact search moves them), and the closest
-points of the pair found with
-:func:`~engine.kernels.geometry.triangle_points.exact_point`. It stops when the smallest
+``precision``, on B's triangles moved as the contact search moves them), each with its
+closest points (:func:`~engine.kernels.geometry.triangle_points.exact_points`; the first
+descent's pair with the scalar
+:func:`~engine.kernels.geometry.triangle_points.exact_point`). It stops when the smallest
 bound in the heap exceeds the best distance, or at a distance of 0 (the meshes touch or
 intersect). The host validates, looks up the trees' packed node rows (built once per
 tree), calls the kernel once and wraps its output.

@@ -17,8 +17,9 @@ within g of the node's triangle, see :mod:`engine.collision.proximity`):
    children of an unfolded pair also the gaps on one box's three axes together,
    :func:`~engine.kernels.collision.distance_bounds.child_bounds`);
 3. triangles: the exact distance of the two node triangles less ``g_a + g_b``
-   (:func:`~engine.kernels.geometry.triangle_points.exact_paired`, vectorised over up to
-   a block of pairs, in the query precision); for a leaf pair, its exact distance.
+   (:func:`~engine.kernels.geometry.triangle_points.exact_points`, vectorised over up to
+   a block of pairs, in the query precision, with the pairs' closest points); for a leaf
+   pair, its exact distance.
 
 Bounds 1 and 2 are cheap (a few dozen flops); 3 is an exact triangle distance, so it is
 computed lazily: only for pairs that reach the top of the heap, a block at a time.
@@ -56,10 +57,13 @@ ends (every other bound is at least as large). Else:
   1.31–1.33 → 1.19–1.21 of Coal's time, issue 15, twelfth step).
 
 The descent's pair is evaluated with
-:func:`~engine.kernels.geometry.triangle_points.exact_point` (distance and closest points);
-when the search finds a closer pair, that pair's closest points are computed once, at the
-end. (Where the descent's pair is the answer, a query computes one exact distance less:
-icospheres 80 at −0.01 in 2.2 µs instead of 2.5.)
+:func:`~engine.kernels.geometry.triangle_points.exact_point` (distance and closest points).
+Every later exact distance comes with its pair's closest points from the same vectorised
+call (``exact_points``, the scalar kernel's values bit for bit), so a closer pair found by
+the search has its points at once: no second scalar ``exact_point`` at the end (can × milk
+at −0.001: 3.57–3.62 → 3.17–3.19 µs a query, issue 15, thirteenth step). (Where the
+descent's pair is the answer, a query computes one exact distance less: icospheres 80 at
+−0.01 in 2.2 µs instead of 2.5.)
 
 A pair unfolds its node with the larger sphere (never a leaf), and the other node too if
 it is a surrogate with a sphere at least ``BOTH`` times as large; when both unfold, each
@@ -78,14 +82,14 @@ A second greedy descent guided by the box bounds, once run when the first found 
 crossing of overlapping roots, is gone: on the peers' 40 poses it cost more where it
 failed (can × milk overlapping: 15 %) than it saved where it found the crossing
 (icospheres 320 at −0.01: 0.62 → 0.76–0.83 of Coal's time), and the geometric mean of the
-40 ratios fell 1–3 % (issue 15, eleventh step). ``exact_paired`` is
+40 ratios fell 1–3 % (issue 15, eleventh step). ``exact_points`` is
 :func:`~engine.kernels.jit.tail_masked`: a refinement of 2 to 8 pairs is one vector
 iteration.
 
 A pair is dropped only when a bound exceeds the best candidate by more than ``margin``
 (:func:`~engine.kernels.collision.batch.query_margin`: 256 ulp of the pair's scale, which
 bounds the rounding of the bounds and of the exact kernel), so the result is the minimum
-of the exact kernel (``exact_paired``, whose distances are ``exact_point``'s) over every
+of the exact kernel (``exact_points``, whose distances are ``exact_point``'s) over every
 face pair (A's rows, B's rows moved), bit for bit.
 
 Node arrays of a tree (``N`` nodes, node order, root at row 0), row-major:
@@ -131,7 +135,7 @@ from engine.kernels.collision.distance_bounds import (  # noqa: F401 (columns re
     sphere_bound,
 )
 from engine.kernels.geometry.triangle_batch import ZERO
-from engine.kernels.geometry.triangle_points import exact_paired, exact_point
+from engine.kernels.geometry.triangle_points import exact_point, exact_points
 from engine.kernels.jit import BORROW, EXACT_BORROW, JIT, stack_buffer
 
 N_COLUMNS = BOX + N_BOX
@@ -327,6 +331,16 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     batch = carray(stack_buffer(POPS, np.int64), (POPS,))  # the entries refined together
     # the leaf pairs evaluated together in the dive
     lane = carray(stack_buffer(LANES, np.int64), (2, POPS))
+    # closest points of the pairs refined together (exact_points: separate rows), so that
+    # the answer's need no scalar exact_point at the end
+    pax = carray(stack_buffer(POPS, prepared_a.dtype), (POPS,))
+    pay = carray(stack_buffer(POPS, prepared_a.dtype), (POPS,))
+    paz = carray(stack_buffer(POPS, prepared_a.dtype), (POPS,))
+    pbx = carray(stack_buffer(POPS, prepared_a.dtype), (POPS,))
+    pby = carray(stack_buffer(POPS, prepared_a.dtype), (POPS,))
+    pbz = carray(stack_buffer(POPS, prepared_a.dtype), (POPS,))
+    zero = one - one  # the query dtype's 0
+    best_p = best_q = (zero, zero, zero)  # the answer's points, once the search finds it
     # child pairs of an unfolded pair: bound, A's, B's
     child_low = carray(stack_buffer(CHILDREN_START, np.float64), (CHILDREN_START,))
     child = carray(stack_buffer(CHILD_INTS, np.int64), (2, CHILDREN_START))
@@ -376,7 +390,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                 _gather_b(b, j, r, s, m, gb, gfb)
                 batch[m] = e
                 m += 1
-            exact_paired(ga, gfa, gb, gfb, m, one, dist)
+            exact_points(ga, gfa, gb, gfb, m, one, dist, pax, pay, paz, pbx, pby, pbz)
             for k in range(m):
                 e = batch[k]
                 i, j = entry_a[e], entry_b[e]
@@ -385,6 +399,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                     exact += 1
                     if d < best:
                         best, best_i, best_j = d, i, j
+                        best_p, best_q = (pax[k], pay[k], paz[k]), (pbx[k], pby[k], pbz[k])
                     continue
                 low = max(key[e], d - a[i, GAP] - b[j, GAP])
                 if low - margin > best:
@@ -440,12 +455,13 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
                     unfolded += 1
                     pairs += count
                 depth -= 1
-            exact_paired(ga, gfa, gb, gfb, m, one, dist)
+            exact_points(ga, gfa, gb, gfb, m, one, dist, pax, pay, paz, pbx, pby, pbz)
             exact += m
             for k in range(m):
                 d = np.float64(dist[k])
                 if d < best:
                     best, best_i, best_j = d, lane[0, k], lane[1, k]
+                    best_p, best_q = (pax[k], pay[k], paz[k]), (pbx[k], pby[k], pbz[k])
             continue
         if count > child_low.shape[0]:
             child_low = np.empty(count)
@@ -521,7 +537,7 @@ def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
             stack[depth] = entries
             depth += 1
         largest = max(largest, size + depth)
-    return best, best_i, best_j, pairs, exact, unfolded, largest, pruned
+    return best, best_i, best_j, pairs, exact, unfolded, largest, pruned, best_p, best_q
 
 
 @njit(**JIT)
@@ -566,7 +582,7 @@ def distance_kernel(prepared_a, a, b, pose_a, pose_b, points):
         else:
             j = pick
     # (gathered: exact_point's C-layout, int64 specialisation, the one the flat search
-    # compiles; its distance is exact_paired's, bit for bit)
+    # compiles; its distance is exact_points', bit for bit)
     _gather_a(prepared_a, i, ZERO, ga, gfa)
     _gather_b(b, j, r, s, ZERO, gb, gfb)
     d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
@@ -575,13 +591,10 @@ def distance_kernel(prepared_a, a, b, pose_a, pose_b, points):
     pairs, unfolded, largest, pruned = ZERO + 1, ZERO, ZERO, ZERO  # the roots' pair
     if best > 0.0 and (a[0, COUNT] > 0 or b[0, COUNT] > 0):
         found = _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one)
-        best, best_i, best_j, pairs, searched, unfolded, largest, pruned = found
+        best, best_i, best_j, pairs, searched, unfolded, largest, pruned = found[:8]
         exact += searched
-
-    if best_i != i or best_j != j:  # the search found a closer pair: its closest points
-        _gather_a(prepared_a, best_i, ZERO, ga, gfa)
-        _gather_b(b, best_j, r, s, ZERO, gb, gfb)
-        d, p, q = exact_point(ga, gfa, ZERO, gb, gfb, ZERO, one)
+        if best_i != i or best_j != j:  # the search found a closer pair, with its points
+            p, q = found[8], found[9]
     pa = np.float64(p[0]), np.float64(p[1]), np.float64(p[2])
     pb = np.float64(q[0]), np.float64(q[1]), np.float64(q[2])
     points[0, 0], points[0, 1], points[0, 2] = _to_world(ra, pose_a, pa)
