@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import EXACT_JIT, JIT
+from engine.kernels.jit import EXACT_BORROW, EXACT_JIT, JIT
 
 PAPER, LINEAR, HERTZ = 0, 1, 2
 
@@ -156,10 +156,10 @@ def apply_terms(offsets, points, origins, terms, starts, entries, friction, firs
         if starts[body] == starts[body + 1]:
             continue
         # the body's sums in registers, from what ``out`` holds (same order, same bits)
-        f0, f1, f2 = force[body, 0], force[body, 1], force[body, 2]
-        m0, m1, m2 = torque[body, 0], torque[body, 1], torque[body, 2]
-        g0, g1, g2 = friction_force[body, 0], friction_force[body, 1], friction_force[body, 2]
-        h0, h1, h2 = friction_torque[body, 0], friction_torque[body, 1], friction_torque[body, 2]
+        f = force[body, 0], force[body, 1], force[body, 2]
+        m = torque[body, 0], torque[body, 1], torque[body, 2]
+        g = friction_force[body, 0], friction_force[body, 1], friction_force[body, 2]
+        h = friction_torque[body, 0], friction_torque[body, 1], friction_torque[body, 2]
         s0, s1, s2 = stiffness[body, 0], stiffness[body, 1], stiffness[body, 2]
         o0, o1, o2 = origins[body, 0], origins[body, 1], origins[body, 2]
         for e in range(starts[body], starts[body + 1]):
@@ -168,29 +168,36 @@ def apply_terms(offsets, points, origins, terms, starts, entries, friction, firs
             for c in range(offsets[q], offsets[q + 1]):
                 if terms[c, ACTIVE] == 0.0:
                     continue
-                r0, r1, r2 = points[c, 0] - o0, points[c, 1] - o1, points[c, 2] - o2
+                r = points[c, 0] - o0, points[c, 1] - o1, points[c, 2] - o2
                 n = NORMAL_FORCE
-                x0, x1, x2 = sign * terms[c, n], sign * terms[c, n + 1], sign * terms[c, n + 2]
-                f0, f1, f2 = f0 + x0, f1 + x1, f2 + x2
-                m0 += r1 * x2 - r2 * x1
-                m1 += r2 * x0 - r0 * x2
-                m2 += r0 * x1 - r1 * x0
+                f, m = _pushed(f, m, r, sign, terms[c, n], terms[c, n + 1], terms[c, n + 2])
                 s0 += terms[c, SPRING_SLOPE]
                 s2 += terms[c, NORMAL_MAGNITUDE]
                 if friction:
                     t = FRICTION_FORCE
-                    y0, y1, y2 = sign * terms[c, t], sign * terms[c, t + 1], sign * terms[c, t + 2]
-                    g0, g1, g2 = g0 + y0, g1 + y1, g2 + y2
-                    h0 += r1 * y2 - r2 * y1
-                    h1 += r2 * y0 - r0 * y2
-                    h2 += r0 * y1 - r1 * y0
+                    g, h = _pushed(g, h, r, sign, terms[c, t], terms[c, t + 1], terms[c, t + 2])
                     s1 += terms[c, FRICTION_SLOPE]
                     s2 += terms[c, FRICTION_MAGNITUDE]
-        force[body, 0], force[body, 1], force[body, 2] = f0, f1, f2
-        torque[body, 0], torque[body, 1], torque[body, 2] = m0, m1, m2
-        friction_force[body, 0], friction_force[body, 1], friction_force[body, 2] = g0, g1, g2
-        friction_torque[body, 0], friction_torque[body, 1], friction_torque[body, 2] = h0, h1, h2
+        force[body, 0], force[body, 1], force[body, 2] = f
+        torque[body, 0], torque[body, 1], torque[body, 2] = m
+        friction_force[body, 0], friction_force[body, 1], friction_force[body, 2] = g
+        friction_torque[body, 0], friction_torque[body, 1], friction_torque[body, 2] = h
         stiffness[body, 0], stiffness[body, 1], stiffness[body, 2] = s0, s1, s2
+
+
+@njit(**EXACT_BORROW, forceinline=True)
+def _pushed(force, moment, r, sign, x0, x1, x2):
+    """``(force + x, moment + r × x)`` for the force ``x = sign · (x0, x1, x2)`` at lever
+    ``r`` (3-tuples; numpy's operations, no contraction)."""
+    x0, x1, x2 = sign * x0, sign * x1, sign * x2
+    return (
+        (force[0] + x0, force[1] + x1, force[2] + x2),
+        (
+            moment[0] + (r[1] * x2 - r[2] * x1),
+            moment[1] + (r[2] * x0 - r[0] * x2),
+            moment[2] + (r[0] * x1 - r[1] * x0),
+        ),
+    )
 
 
 @njit(**EXACT_JIT)
