@@ -449,8 +449,9 @@ class Scene:
         origins, centres = np.empty((n, 3)), np.empty((n, 3))
         roots = self._roots()
         limit = coordinate_limit(np.float64)
-        # one pass, on this thread: 0.1 ms for the paper's 24,576-sphere grid, less than a
-        # hand-off to the worker threads
+        # one pass, on this thread: 0.1 ms for the paper's 24,576-sphere grid (split over
+        # 16 worker threads, it was slower on a 16-core machine: BENCHMARKS.md, issue 15,
+        # thirteenth step)
         bad = kd.placed_bodies(
             positions, orientations, self.centers, roots, limit, (origins, centres)
         )

@@ -34,8 +34,9 @@ __all__ = ["ContactBatch", "TreeBank", "find_contacts_batch"]
 MAX_LEVELS = 32
 """Per-level comparison counts kept per pair (deeper levels are counted, not kept)."""
 _PAIRS_PER_TASK = 64  # below this many pairs per worker, one thread is faster
-_CHUNKS_PER_THREAD = 8  # chunks of pairs a worker thread takes in turn, on average (4: 13 of 16
-# threads busy on the grid, 8: 14.5; BENCHMARKS.md, issue 15, thirteenth step)
+# chunks of pairs a worker thread takes in turn, on average (on the grid with 16 threads, 4
+# kept 12.9-13.8 threads busy and 8 kept 14.2-14.9; BENCHMARKS.md, issue 15, thirteenth step)
+_CHUNKS_PER_THREAD = 8
 
 
 @dataclass(frozen=True)

@@ -122,9 +122,9 @@ def mesh_distance(
     -------
     MeshDistance
     """
-    # the common case, exact types and a known precision, checked inline (each checking
-    # function's call costs ~50 ns of a ~4 µs query), calls the kernel's compiled entry
-    # point (_compiled_kernel); anything else is checked in full and dispatched by Numba
+    # the common case, exact types and a known precision, is checked inline (no calls)
+    # and calls the kernel's compiled entry point (_compiled_kernel); anything else is
+    # checked in full and dispatched by Numba
     dtype = PRECISIONS.get(precision) if type(precision) is str else None
     exact = (
         dtype is not None
@@ -186,9 +186,10 @@ def _compiled_kernel(dtype) -> Callable:
     Numba's dispatch."""
     kernel = _KERNELS.get(dtype)
     if kernel is None:
-        rows = np.empty((1, ds.N_COLUMNS))
-        prepared = rows if dtype is np.float64 else np.empty((1, 23), dtype)
-        example = (prepared, rows, rows, np.empty(7), np.empty(7), np.empty((2, 3)))
+        # arrays of the arguments' types (their shapes play no part in the types)
+        rows = np.empty((1, 1))
+        prepared = rows if dtype is np.float64 else np.empty((1, 1), dtype)
+        example = (prepared, rows, rows, np.empty(1), np.empty(1), np.empty((1, 1)))
         kernel = ds.distance_kernel.compile(tuple(numba.typeof(a) for a in example))
         _KERNELS[dtype] = kernel
     return kernel

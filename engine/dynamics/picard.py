@@ -70,10 +70,10 @@ BETA_MAX = 1.5
 BETA_MIN = 0.01
 _ATOL = 1e-9
 SWITCH_AFTER = 8
-_BODIES_PER_PART = 2048  # bodies a worker thread advances at least (~0.3 ms)
 """Picard iterations after which a step may settle on a contact-set switch (:func:`_switch`)."""
 NORMAL, FRICTION = 0, 1
 """The two parts of the contact forces a Picard iteration relaxes, each with its weight."""
+_BODIES_PER_PART = 2048  # bodies a worker thread advances at least (~0.3 ms)
 
 
 @dataclass(frozen=True)
