@@ -61,9 +61,9 @@ The descent's pair is evaluated with
 Every later exact distance comes with its pair's closest points from the same vectorised
 call (``exact_points``, the scalar kernel's values bit for bit), so a closer pair found by
 the search has its points at once: no second scalar ``exact_point`` at the end (can × milk
-at −0.001: 3.57–3.62 → 3.17–3.19 µs a query, issue 15, thirteenth step). (Where the
-descent's pair is the answer, a query computes one exact distance less: icospheres 80 at
-−0.01 in 2.2 µs instead of 2.5.)
+at −0.001: 3.57–3.62 → 3.17–3.19 µs a query in two of three rounds, issue 15,
+thirteenth step). (Where the descent's pair is the answer, a query computes one exact
+distance less: icospheres 80 at −0.01 in 2.2 µs instead of 2.5.)
 
 A pair unfolds its node with the larger sphere (never a leaf), and the other node too if
 it is a surrogate with a sphere at least ``BOTH`` times as large; when both unfold, each
@@ -318,7 +318,9 @@ def _to_world(ra, pose, p):
 def _search(prepared_a, a, b, r, s, margin, best, best_i, best_j, one):
     """Best-first search from the roots' pair, given the descents' ``best`` distance (> 0)
     of the leaf pair (``best_i``, ``best_j``); returns ``(best, best_i, best_j, pairs,
-    exact, unfolded, largest, pruned)``."""
+    exact, unfolded, largest, pruned, best_p, best_q)``, the last two the closest points
+    (query dtype, A's frame) of the pair the search found, if it found a closer one than
+    the descent's (else zeros)."""
     pairs = exact = unfolded = pruned = ZERO
     # every buffer in this frame (stack_buffer: no allocation, release or reference
     # counts; one grown past its start is replaced by an np.empty one)

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.geometry.rotation import quaternion_rotation
-from engine.kernels.jit import JIT
+from engine.kernels.jit import BORROW, JIT
 
 
 @njit(**JIT)
@@ -54,10 +54,7 @@ def surface_speeds(velocities, angular_velocities, radius, out):
     """``out (n,)`` float64: each body's largest surface speed bound |v| + |ω|·R for
     ``velocities``, ``angular_velocities (n, 3)`` and bounding ``radius (n,)`` float64."""
     for b in range(velocities.shape[0]):
-        v0, v1, v2 = velocities[b, 0], velocities[b, 1], velocities[b, 2]
-        w0, w1, w2 = angular_velocities[b, 0], angular_velocities[b, 1], angular_velocities[b, 2]
-        linear = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-        out[b] = linear + radius[b] * np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        out[b] = _surface_speed(velocities, angular_velocities, radius, b)
 
 
 @njit(**JIT)
@@ -69,14 +66,19 @@ def largest_travel(velocities, angular_velocities, radius, epsilon, fixed, dt):
     for b in range(velocities.shape[0]):
         if fixed[b]:
             continue
-        v0, v1, v2 = velocities[b, 0], velocities[b, 1], velocities[b, 2]
-        w0, w1, w2 = angular_velocities[b, 0], angular_velocities[b, 1], angular_velocities[b, 2]
-        linear = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-        speed = linear + radius[b] * np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-        ratio = speed * abs(dt) / epsilon[b]
+        ratio = _surface_speed(velocities, angular_velocities, radius, b) * abs(dt) / epsilon[b]
         if body < 0 or ratio > largest:
             largest, body = ratio, b
     return largest, body
+
+
+@njit(**BORROW, forceinline=True)
+def _surface_speed(velocities, angular_velocities, radius, b):
+    """|v| + |ω|·R of body ``b`` (arrays as :func:`surface_speeds`)."""
+    v0, v1, v2 = velocities[b, 0], velocities[b, 1], velocities[b, 2]
+    w0, w1, w2 = angular_velocities[b, 0], angular_velocities[b, 1], angular_velocities[b, 2]
+    linear = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    return linear + radius[b] * np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
 
 
 @njit(**JIT)
