@@ -54,6 +54,13 @@ from engine.dynamics import picard
 from engine.dynamics.bodies import BodyCache, body_terms
 from engine.dynamics.evaluation import WarmStart
 from engine.dynamics.forces import ContactModel, PaperSpring
+from engine.dynamics.history import (
+    DEFAULT_SEPARATION_SPEED,
+    ContactHistory,
+    OverlapReport,
+    check_speed,
+    overlap_report,
+)
 from engine.dynamics.inertia import body_mass, fixed_center
 from engine.dynamics.sleep import Sleep
 from engine.errors import InvalidArgumentError
@@ -114,6 +121,10 @@ class Scene:
     substeps : bool — split a step in which some body's surface would move by more than its
         ε into as many equal sub-steps as that takes (else a ``TunnellingWarning``; see
         :func:`engine.dynamics.picard.travel`)
+    separation_speed : float — the largest speed at which overlaps present when the state
+        is set from outside (bodies added, ``set_state``) are let go (m/s; default
+        :data:`~engine.dynamics.history.DEFAULT_SEPARATION_SPEED`: ``inf``, at once, as the
+        spring pushes; 0.5 is a gentle start)
     skin : float — the multiresolution search keeps, per body pair, the leaf pairs within
         ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
         by less than that skin (:class:`~engine.collision.pair_cache.PairCache`: exactly the same
@@ -123,6 +134,9 @@ class Scene:
     Attributes besides the state arrays
     -----------------------------------
     pair_cache : PairCache — the multiresolution search's per-pair leaf lists
+    contact_history : ContactHistory or None — the contacts' tangential springs and
+        allowances after the last step (:mod:`engine.dynamics.history`)
+    gentle_start : bool — the next step gives the overlaps of its start an allowance
     warm_start : WarmStart or None — the last converged Picard step's final evaluation,
         reused by the next step (:mod:`engine.dynamics.evaluation`); cleared when bodies
         are added and by steps that end elsewhere
@@ -144,6 +158,7 @@ class Scene:
         skin: float = DEFAULT_SKIN,
         substeps: bool = False,
         sleep=False,
+        separation_speed: float = DEFAULT_SEPARATION_SPEED,
     ) -> None:
         self.gravity = check_vector(gravity, 3, "gravity")
         model = PaperSpring() if contact_model is None else contact_model
@@ -178,6 +193,9 @@ class Scene:
         self._candidates = CandidateList()  # the broad phase, kept while bodies stay near
         self.pair_cache = PairCache(skin)
         self.warm_start: WarmStart | None = None  # the last converged step's final forces
+        self.contact_history: ContactHistory | None = None  # springs and allowances
+        self.gentle_start = True  # the next step gives initial overlaps an allowance
+        self.separation_speed = check_speed(separation_speed)
         self.body_cache = BodyCache()
         # (tree_index they were made for, array): kept while the bodies are the same
         self._root_spheres: tuple[np.ndarray, np.ndarray] | None = None
@@ -306,6 +324,7 @@ class Scene:
         self._wake()
         self.pair_cache.clear()  # its keys number the pairs by the body count
         self.warm_start = None
+        self.contact_history, self.gentle_start = None, True
         self.positions = np.concatenate([self.positions, positions])
         self.orientations = np.concatenate([self.orientations, orientations])
         self.velocities = np.concatenate([self.velocities, velocities])
@@ -377,10 +396,16 @@ class Scene:
 
     def set_state(
         self, positions=None, orientations=None, velocities=None, angular_velocities=None
-    ) -> None:
+    ) -> OverlapReport | None:
         """Overwrite any of the state arrays (validated in full before anything changes;
         quaternions with a norm within 1e-6 of 1 are renormalised). Fixed bodies keep
-        zero velocities."""
+        zero velocities.
+
+        New positions or orientations end the contacts' history (springs, allowances):
+        the next step starts gently (overlaps let go at ``separation_speed`` at most,
+        :mod:`engine.dynamics.history`), and the returned
+        :class:`~engine.dynamics.history.OverlapReport` lists the body pairs whose
+        surfaces now cross (overlap beyond the reach ε_a + ε_b). Else None."""
         n = len(self)
         new = {}
         for name, value, width in (
@@ -399,6 +424,10 @@ class Scene:
         for name, value in new.items():
             setattr(self, name, value)
         self._wake()
+        if "positions" not in new and "orientations" not in new:
+            return None
+        self.contact_history, self.gentle_start = None, True
+        return overlap_report(self.contacts(self.positions, self.orientations), self.epsilon)
 
     # ------------------------------------------------------------------ stepping
     def step(self, dt: float, scheme: str | None = None):

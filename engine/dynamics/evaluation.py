@@ -61,6 +61,11 @@ class Evaluation(NamedTuple):
         friction's ∂F_t/∂v_t, and |F_n| + |F_t| (the force scale of Picard's test)
     contacts : Contacts — the leaf contacts found
     energy : float — elastic energy stored in the contact springs
+    terms : (c, TERMS) float64 — each leaf contact's terms
+        (:func:`~engine.kernels.dynamics.contact_forces.contact_terms`): the slopes of the
+        linearised forces (:mod:`engine.kernels.dynamics.linearized`)
+    history : (c, HISTORY) float64 — each leaf contact's history at the step's start
+        (:mod:`engine.dynamics.history`)
     changed : bool — the search's fronts changed (multiscale), so the contact set of
         the configuration is not final
     """
@@ -70,6 +75,8 @@ class Evaluation(NamedTuple):
     stiffness: np.ndarray
     contacts: Contacts
     energy: float
+    terms: np.ndarray
+    history: np.ndarray
     changed: bool
 
 
@@ -90,13 +97,21 @@ class WarmStart:
     evaluation: Evaluation
 
 
-def evaluate(scene, configuration, origins: np.ndarray, search) -> Evaluation:
+def evaluate(
+    scene, configuration, origins: np.ndarray, search, h: float = 0.0, history=None
+) -> Evaluation:
     """The :class:`Evaluation` of ``configuration`` (positions, orientations, velocities,
     angular velocities) with torques about ``origins (n, 3)``: ``search(positions,
     orientations)`` returns ``(contacts, surrogate contacts or None, changed)``.
-    Surrogate contacts (multiscale) add normal forces only."""
+    Surrogate contacts (multiscale) add normal forces only. ``history``: the contacts'
+    :class:`~engine.dynamics.history.ContactHistory` at the start of a step of length
+    ``h`` (None: no tangential spring is stretched, no allowance)."""
     x, q, v, w = configuration
     contacts, surrogate, changed = search(x, q)
+    if history is None:
+        matched = np.zeros((len(contacts.points), kf.HISTORY))
+    else:
+        matched = history.matched(contacts, x, q, scene.epsilon)
     bodies = body_terms(scene)
     force = bodies.force.copy()
     torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
@@ -104,11 +119,18 @@ def evaluate(scene, configuration, origins: np.ndarray, search) -> Evaluation:
     out = (force, torque, friction_force, friction_torque, stiffness)
     law = scene.contact_model.parameters()
     energy = 0.0
-    for found, parameters in ((contacts, law), (surrogate, (*law[:3], 0.0, law[4]))):
+    terms = np.zeros((len(contacts.points), kf.TERMS))
+    frictionless = (*law[:3], 0.0, *law[4:])
+    for found, parameters, kept, past in (
+        (contacts, law, terms, matched),
+        (surrogate, frictionless, None, None),
+    ):
         if found is not None and len(found.points):
             state = (x, v, w, origins)
-            params = (scene.masses, scene.epsilon)
-            energy += contact_forces(found, state, params, parameters, out, scene.threads)
+            if past is None:
+                past = np.zeros((len(found.points), kf.HISTORY))
+            params = (scene.masses, scene.epsilon, past, float(h))
+            energy += contact_forces(found, state, params, parameters, out, scene.threads, kept)
     if len(bodies.fixed):
         for array in (force, torque, friction_force, friction_torque):
             array[bodies.fixed] = 0.0
@@ -118,24 +140,31 @@ def evaluate(scene, configuration, origins: np.ndarray, search) -> Evaluation:
         stiffness=stiffness,
         contacts=contacts,
         energy=energy,
+        terms=terms,
+        history=matched,
         changed=changed,
     )
 
 
-def contact_forces(found: Contacts, state, params, law, out, threads: int | None) -> float:
+def contact_forces(
+    found: Contacts, state, params, law, out, threads: int | None, terms=None
+) -> float:
     """Add the forces of the contacts ``found`` to ``out`` with the contact ``law`` (the
     kernel tuple of a :class:`~engine.dynamics.forces.ContactModel`); returns their elastic
     energy. ``state = (positions, velocities, angular_velocities, lever_origins)``, each
-    ``(n, 3)`` float64; ``params = (masses, epsilon)``, ``(n,)`` float64 (``inf`` mass for a
-    fixed body); ``out`` as
-    :func:`~engine.kernels.dynamics.contact_forces.apply_terms` takes it.
+    ``(n, 3)`` float64; ``params = (masses, epsilon, history, h)``: ``(n,)`` float64 (``inf``
+    mass for a fixed body), the contacts' ``(c, HISTORY)`` history and the step length
+    (:func:`~engine.kernels.dynamics.contact_forces.contact_terms`); ``out`` as
+    :func:`~engine.kernels.dynamics.contact_forces.apply_terms` takes it; ``terms``, if
+    given, a ``(c, TERMS)`` float64 array that receives the contacts' terms.
 
     Each contact's terms are computed in parts of the pairs, then each body sums its own
     contacts in pair order, in parts of the bodies, on the worker threads (``threads``;
     None: all cores): the same bits at any thread count. On the paper's 24,576-sphere
     grid (71,168 contacts) this was 2.2 ms of serial host work an evaluation."""
     bodies, offsets = found.bodies, found.offsets
-    terms = np.empty((len(found.points), kf.TERMS))
+    if terms is None:
+        terms = np.empty((len(found.points), kf.TERMS))
 
     def terms_part(first: int, last: int) -> None:
         kf.contact_terms(

@@ -60,6 +60,8 @@ import numpy as np
 from engine.collision.configuration import SEARCH_COUNTERS
 from engine.dynamics.bodies import body_terms, smallest_inertia
 from engine.dynamics.evaluation import WarmStart, Wrench, cross, evaluate, evaluation_key, reused
+from engine.dynamics.history import ContactHistory, allowances, carried, govern
+from engine.dynamics.newton import Linearization
 from engine.kernels.dynamics import contact_forces as kf
 from engine.kernels.dynamics import motion as kd
 from engine.workers import in_parts
@@ -74,6 +76,8 @@ SWITCH_AFTER = 8
 NORMAL, FRICTION = 0, 1
 """The two parts of the contact forces a Picard iteration relaxes, each with its weight."""
 _BODIES_PER_PART = 2048  # bodies a worker thread advances at least (~0.3 ms)
+NEWTON_CONTRACTION = 0.5
+"""A Newton correction must shrink the residual by this factor, else the step relaxes."""
 
 
 @dataclass(frozen=True)
@@ -169,6 +173,7 @@ def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> Ste
         )
     left = scene.max_halvings if halvings_left is None else halvings_left
     state = _state(scene)
+    history, gentle = scene.contact_history, scene.gentle_start
     if scheme == "explicit":
         stats = _explicit(scene, dt)
         scene.warm_start = None
@@ -177,18 +182,21 @@ def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> Ste
         search.begin_step()
         stats = _picard(scene, dt, search)
     elif scheme == "implicit-midpoint":
-        stats = _picard(scene, dt / 2, _Search(scene, hierarchy=True))
+        stats = _picard(scene, dt / 2, _Search(scene, hierarchy=True), full_dt=dt)
         if stats["converged"] or left == 0:
             _extrapolate(scene, state, dt)
     else:
         stats = _picard(scene, dt, _Search(scene, hierarchy=scheme == "implicit-surrogate"))
     if not stats["converged"] and left > 0:
         _restore(scene, state)
+        scene.contact_history, scene.gentle_start = history, gentle
         first = step(scene, dt / 2, scheme, left - 1)
         second = step(scene, dt / 2, scheme, left - 1)
         merged = _combined([first, second], dt, time.perf_counter() - start)
         return dataclasses.replace(merged, halvings=merged.halvings + 1, travel=ratio)
     scene.time += dt
+    scene.gentle_start = False
+    govern(scene, body_terms(scene).radius)
     return StepStats(
         scheme=scheme,
         dt=dt,
@@ -212,7 +220,11 @@ class _Search:
 def _explicit(scene, dt: float) -> dict:
     x, q, v, w = _state(scene)
     search = _Search(scene, hierarchy=True)
-    evaluation = evaluate(scene, (x, q, v, w), x, search)
+    history = scene.contact_history
+    evaluation = evaluate(scene, (x, q, v, w), x, search, dt, history)
+    if scene.gentle_start:
+        history, evaluation = _gentle_start(scene, evaluation, (x, q, v, w), dt, history)
+    _commit_history(scene, evaluation, (x, q), dt, False, history)
     out = tuple(np.empty_like(a) for a in (x, q, v, w))
     total = evaluation.normal.plus(evaluation.friction)
     _advance(scene, (x, q, v, w), total.force, total.torque, dt, out)
@@ -222,65 +234,133 @@ def _explicit(scene, dt: float) -> dict:
     return {**summary, "evaluations": 1}
 
 
-def _picard(scene, dt: float, search) -> dict:
+def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
+    """Picard iterations of a backward Euler step of ``dt`` (the half step of the implicit
+    midpoint rule when ``full_dt`` is given: the whole step's length)."""
     start = _state(scene)
     guess = tuple(a.copy() for a in start)
     radius = body_terms(scene).radius
-    # per part (NORMAL, FRICTION): applied wrench, last residual, relaxation weight
-    applied: list[Wrench] | None = None
+    history = scene.contact_history
+    applied: Wrench | None = None  # the applied total (normal and friction forces)
+    relaxed: list[Wrench] | None = None  # per part (NORMAL, FRICTION) once relaxing
     residual, beta = [None, None], [1.0, 1.0]
     counters, converged, iterations, evaluations = [], False, 0, 0
     key = evaluation_key(scene, search)
     forceless = True  # no evaluation of this step has had a contact force so far
     recent: list[Wrench] = []  # the last computed totals
+    newton: Linearization | None = Linearization(scene, start, dt)
+    last_size = math.inf
     while iterations < scene.max_picard_iterations:
         iterations += 1
         warm = reused(scene, key, start) if iterations == 1 else None
         if warm is None:
-            evaluation = evaluate(scene, guess, start[0], search)
+            evaluation = evaluate(scene, guess, start[0], search, dt, history)
             evaluations += 1
+        elif history is not None:  # the same contacts; their springs start from this step
+            evaluation = evaluate(scene, guess, start[0], _Found(warm.contacts), dt, history)
         else:
             evaluation = warm
+        if iterations == 1 and scene.gentle_start:
+            history, evaluation = _gentle_start(scene, evaluation, guess, dt, history)
         stiffness, changed = evaluation.stiffness, evaluation.changed
         forceless = forceless and not stiffness.any()
         computed = (evaluation.normal, evaluation.friction)  # indexed by NORMAL, FRICTION
         found = evaluation.contacts.counters
         counters.append(found if warm is None else _no_search(found))
-        if applied is None:  # the forces of the step's start, then the first relaxation
-            applied = [Wrench(c.force.copy(), c.torque.copy()) for c in computed]
-            beta = _first_weights(scene, stiffness, radius, dt)
+        total = evaluation.normal.plus(evaluation.friction)
+        if applied is None:  # the step's start: predict its end (linearly implicit Euler)
+            applied = newton.predicted(evaluation)
         else:
-            total = evaluation.normal.plus(evaluation.friction)
-            change = [c.minus(a) for c, a in zip(computed, applied, strict=True)]
+            change = [c.minus(a) for c, a in zip(computed, _parts(applied, relaxed), strict=True)]
             mismatch = change[NORMAL].plus(change[FRICTION])
             # body forces alone, every time: the applied forces are the computed ones exactly
             settled = forceless or _settled(scene, total, mismatch, stiffness[:, 2], radius)
             recent = [] if changed else [*recent[-5:], total]
             if not settled and iterations > SWITCH_AFTER:
-                applied_total = applied[NORMAL].plus(applied[FRICTION])
-                settled = _switch(scene, recent, applied_total, stiffness[:, 2], radius)
+                settled = _switch(scene, recent, applied, stiffness[:, 2], radius)
             converged = settled and not changed  # multiscale: nothing unfolded either
             if converged:
                 break
-            if changed:  # a front moved: the secant history no longer describes the map
-                residual = [None, None]
+            size = float(np.linalg.norm(_flat(mismatch, radius)))
+            if newton is not None and (changed or size > NEWTON_CONTRACTION * last_size):
+                # not contracting (a contact-set switch) or the fronts moved: relax instead
+                newton, relaxed = None, [applied, _zero(applied)]
                 beta = _first_weights(scene, stiffness, radius, dt)
-            for part in (NORMAL, FRICTION):  # each with its own weight
-                new = _flat(change[part], radius)
-                beta[part] = _aitken(beta[part], residual[part], new)
-                residual[part] = new
-                applied[part] = Wrench(
-                    applied[part].force + beta[part] * change[part].force,
-                    applied[part].torque + beta[part] * change[part].torque,
-                )
-        total_applied = applied[NORMAL].plus(applied[FRICTION])
-        _advance(scene, start, total_applied.force, total_applied.torque, dt, guess)
+            last_size = size
+            if newton is not None:
+                applied = newton.corrected(evaluation, applied)
+            else:
+                if changed:  # a front moved: the secant history no longer describes the map
+                    residual = [None, None]
+                    beta = _first_weights(scene, stiffness, radius, dt)
+                for part in (NORMAL, FRICTION):  # each with its own weight
+                    new = _flat(change[part], radius)
+                    beta[part] = _aitken(beta[part], residual[part], new)
+                    residual[part] = new
+                    relaxed[part] = Wrench(
+                        relaxed[part].force + beta[part] * change[part].force,
+                        relaxed[part].torque + beta[part] * change[part].torque,
+                    )
+                applied = relaxed[NORMAL].plus(relaxed[FRICTION])
+        _advance(scene, start, applied.force, applied.torque, dt, guess)
     _restore(scene, guess)
     # the forces of the accepted configuration are the next step's first evaluation
     scene.warm_start = WarmStart(key, guess, start[0], evaluation) if converged else None
+    _commit_history(scene, evaluation, guess, full_dt or dt, full_dt is not None, history)
     contacts, energy = evaluation.contacts, evaluation.energy
     summary = _summary(scene, contacts, counters, energy, converged, iterations)
     return {**summary, "evaluations": evaluations}
+
+
+def _parts(applied: Wrench, relaxed: list[Wrench] | None) -> list[Wrench]:
+    """The applied forces per part (NORMAL, FRICTION): the relaxed parts, or while Newton
+    corrections run, the total as the normal part (the split is the relaxation's)."""
+    return relaxed if relaxed is not None else [applied, _zero(applied)]
+
+
+def _zero(wrench: Wrench) -> Wrench:
+    return Wrench(np.zeros_like(wrench.force), np.zeros_like(wrench.torque))
+
+
+class _Found:
+    """A search that returns contacts found before (an evaluation without searching)."""
+
+    def __init__(self, contacts) -> None:
+        self.contacts = contacts
+
+    def __call__(self, positions, orientations):
+        return self.contacts, None, False
+
+
+def _gentle_start(scene, evaluation, configuration, h: float, history):
+    """After the state was set from outside: ``(history, evaluation)`` with every contact
+    of the step's start given its allowance (:mod:`engine.dynamics.history`), the start's
+    forces evaluated again with it (same contacts, no search)."""
+    if not math.isfinite(scene.separation_speed):  # overlaps pushed apart at once
+        return history, evaluation
+    values = allowances(evaluation)
+    if not (values[:, kf.HISTORY_ALLOWANCE] > 0.0).any():
+        return history, evaluation
+    x, q = configuration[0], configuration[1]
+    history = ContactHistory.of(evaluation.contacts, x, q, values)
+    found = _Found(evaluation.contacts)
+    return history, evaluate(scene, configuration, x, found, h, history)
+
+
+def _commit_history(scene, evaluation, configuration, dt: float, midpoint: bool, history):
+    """Leave the contacts' history of the accepted ``evaluation`` (at ``configuration``)
+    to the next step of ``scene``: kept while friction sticks or an allowance is left."""
+    if not scene.contact_model.sticks and history is None:
+        scene.contact_history = None
+        return
+    values = carried(evaluation, 0.5 * scene.separation_speed * dt, midpoint)
+    start = evaluation.history
+    releasing = (values[:, kf.HISTORY_RELEASING] != 0.0) | (start[:, kf.HISTORY_RELEASING] != 0.0)
+    if not scene.contact_model.sticks and not releasing.any():
+        scene.contact_history = None
+        return
+    x, q = configuration[0], configuration[1]
+    scene.contact_history = ContactHistory.of(evaluation.contacts, x, q, values, start)
 
 
 def _flat(wrench: Wrench, radius: np.ndarray) -> np.ndarray:

@@ -258,7 +258,7 @@ def test_picard_non_convergence_is_reported_and_finite():
             gravity=(0.0, 0.0, 0.0),
             scheme="implicit-surrogate",
             contact_model=PaperSpring(stiffness=1e6),
-            max_picard_iterations=8,
+            max_picard_iterations=2,
             max_halvings=halvings,
         )
         scene.add_body(_ball(), position=(0.0, 0.0, 0.0), velocity=(1.0, 0.0, 0.0))

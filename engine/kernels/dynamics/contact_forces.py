@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import EXACT_BORROW, EXACT_JIT, JIT
+from engine.kernels.jit import BORROW, EXACT_BORROW, EXACT_JIT, JIT
 
 PAPER, LINEAR, HERTZ = 0, 1, 2
 
@@ -30,7 +30,19 @@ FRICTION_SLOPE = 8  # μ·F_n/v_slip, the friction's steepest (sticking) slope
 FRICTION_MAGNITUDE = 9  # |F_t|
 ENERGY = 10  # the elastic energy of the contact's spring
 ACTIVE = 11  # 1.0 where the contact overlaps (δ > 0) and acts, else 0.0
-TERMS = 12
+DAMPING_SLOPE = 12  # c_n = −∂F_n/∂v_n where the damping acts (F_n > 0), else 0
+FRICTION_SCALE = 13  # μ·F_n/s, s = √(|v_t|² + v_slip²) (0 without friction)
+SLIP = 14  # s
+TANGENT = 15  # 15:18 the sliding velocity v_t of B relative to A
+TANGENT_SPRING = 18  # k_t where the tangential spring sticks, else 0
+DISPLACEMENT = 19  # 19:22 the tangential spring's displacement ξ at the end of the step
+TERMS = 22
+
+# columns of a contact's history (:mod:`engine.dynamics.history`)
+HISTORY_DISPLACEMENT = 0  # 0:3 ξ at the start of the step
+HISTORY_ALLOWANCE = 3  # the overlap the spring does not push against (a gentle start)
+HISTORY_RELEASING = 4  # 1.0 while the contact lets go of an initial overlap, else 0.0
+HISTORY = 5
 
 
 @njit(**JIT)
@@ -43,12 +55,20 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
     ``bodies (k, 2)`` int64: body pair q = (a, b) owns contacts ``offsets[q]:offsets[q + 1]``
     of ``points, normals (c, 3)`` (normals unit, from a to b) and ``overlaps (c,)``.
     ``state = (positions, velocities, angular_velocities, lever_origins)``: velocities give
-    the relative sliding velocity. ``params = (mass (n,), epsilon (n,))`` with ``inf`` mass
-    for fixed bodies. Each contact's row is its own: any split of the pairs gives the same
-    bits."""
+    the relative sliding velocity. ``params = (mass (n,), epsilon (n,), history (c,
+    HISTORY), h)`` with ``inf`` mass for fixed bodies, each contact's history at the start
+    of the step (its tangential displacement and its allowance: the spring acts on
+    δ − allowance) and the step's length h. Each contact's row is its own: any split of the
+    pairs gives the same bits.
+
+    Friction with a tangential spring (``law[5]`` = k_t/k_n > 0, Cundall–Strack): the
+    displacement ξ = ξ₀ (turned into the contact's tangent plane, its length kept) +
+    h·v_t, the force −k_t·ξ − c_t·v_t (c_t = 2ζ√(k_t·m_red)) capped at μF_n; where
+    capped the contact slides and ξ is rescaled to the capped force. Without it
+    (``law[5]`` = 0) friction is the regularised Coulomb law."""
     positions, velocities, spins, _ = state
-    mass, epsilon = params
-    kind, k_law, zeta, mu, v_slip = law
+    mass, epsilon, history, h = params
+    kind, k_law, zeta, mu, v_slip, kt_ratio = law
     for q in range(first, last):
         a, b = bodies[q, 0], bodies[q, 1]
         ma, mb = mass[a], mass[b]
@@ -60,7 +80,7 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
             m_red = ma * mb / (ma + mb)
         reach = epsilon[a] + epsilon[b]
         for c in range(offsets[q], offsets[q + 1]):
-            delta = overlaps[c]
+            delta = overlaps[c] - history[c, HISTORY_ALLOWANCE]
             if delta <= 0.0:
                 terms[c, :] = 0.0
                 continue
@@ -90,9 +110,19 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
             u1 -= velocities[a, 1] + wa[2] * ra0 - wa[0] * ra2
             u2 -= velocities[a, 2] + wa[0] * ra1 - wa[1] * ra0
             v_n = u0 * n0 + u1 * n1 + u2 * n2
-            if zeta > 0.0:
-                f_n = max(f_n - 2.0 * zeta * np.sqrt(k_eff * m_red) * v_n, 0.0)
+            damping = 0.0
+            # a contact letting go of an allowance is at least critically damped
+            ratio = zeta if history[c, HISTORY_ALLOWANCE] == 0.0 else max(zeta, 1.0)
+            if ratio > 0.0:
+                damping = 2.0 * ratio * np.sqrt(k_eff * m_red)
+                f_n = f_n - damping * v_n
+                if f_n <= 0.0:
+                    f_n, damping = 0.0, 0.0
             t0, t1, t2 = u0 - v_n * n0, u1 - v_n * n1, u2 - v_n * n2
+            terms[c, DAMPING_SLOPE] = damping
+            terms[c, TANGENT] = t0
+            terms[c, TANGENT + 1] = t1
+            terms[c, TANGENT + 2] = t2
             terms[c, NORMAL_FORCE] = f_n * n0
             terms[c, NORMAL_FORCE + 1] = f_n * n1
             terms[c, NORMAL_FORCE + 2] = f_n * n2
@@ -100,7 +130,13 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
             terms[c, NORMAL_MAGNITUDE] = f_n
             terms[c, ENERGY] = energy
             terms[c, ACTIVE] = 1.0
-            if mu > 0.0:
+            terms[c, TANGENT_SPRING] = 0.0
+            terms[c, DISPLACEMENT : DISPLACEMENT + 3] = 0.0
+            if mu > 0.0 and kt_ratio > 0.0:
+                _spring_friction(history, c, (n0, n1, n2), (t0, t1, t2), h, f_n, mu,
+                                 kt_ratio * k_eff, 2.0 * zeta * np.sqrt(kt_ratio * k_eff * m_red),
+                                 terms)  # fmt: skip
+            elif mu > 0.0:
                 slip = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2 + v_slip * v_slip)
                 scale = mu * f_n / slip
                 terms[c, FRICTION_FORCE] = -scale * t0
@@ -108,10 +144,55 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
                 terms[c, FRICTION_FORCE + 2] = -scale * t2
                 terms[c, FRICTION_SLOPE] = mu * f_n / v_slip
                 terms[c, FRICTION_MAGNITUDE] = scale * np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+                terms[c, FRICTION_SCALE] = scale
+                terms[c, SLIP] = slip
             else:
                 terms[c, FRICTION_FORCE : FRICTION_FORCE + 3] = 0.0
                 terms[c, FRICTION_SLOPE] = 0.0
                 terms[c, FRICTION_MAGNITUDE] = 0.0
+                terms[c, FRICTION_SCALE] = 0.0
+                terms[c, SLIP] = 0.0
+
+
+@njit(**BORROW, forceinline=True)
+def _spring_friction(history, c, normal, tangent, h, f_n, mu, k_t, c_t, terms):
+    """Contact ``c``'s friction with a tangential spring of stiffness ``k_t`` and damping
+    ``c_t`` (:func:`contact_terms`): its force, slopes, displacement
+    into ``terms`` (its energy is not counted in ENERGY, the normal spring's)."""
+    n0, n1, n2 = normal
+    t0, t1, t2 = tangent
+    x0 = history[c, HISTORY_DISPLACEMENT]
+    x1 = history[c, HISTORY_DISPLACEMENT + 1]
+    x2 = history[c, HISTORY_DISPLACEMENT + 2]
+    length = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    along = x0 * n0 + x1 * n1 + x2 * n2
+    x0, x1, x2 = x0 - along * n0, x1 - along * n1, x2 - along * n2
+    turned = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    if turned > 0.0:
+        x0, x1, x2 = x0 * (length / turned), x1 * (length / turned), x2 * (length / turned)
+    x0, x1, x2 = x0 + h * t0, x1 + h * t1, x2 + h * t2
+    g0, g1, g2 = -k_t * x0 - c_t * t0, -k_t * x1 - c_t * t1, -k_t * x2 - c_t * t2
+    size = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    cap = mu * f_n
+    if size > cap:  # sliding: the force at Coulomb's cap, the spring stretched to match it
+        scale = cap / size
+        g0, g1, g2 = g0 * scale, g1 * scale, g2 * scale
+        x0, x1, x2 = -g0 / k_t, -g1 / k_t, -g2 / k_t
+        size = cap
+        terms[c, TANGENT_SPRING] = 0.0
+        terms[c, FRICTION_SCALE] = 0.0
+    else:
+        terms[c, TANGENT_SPRING] = k_t
+        terms[c, FRICTION_SCALE] = c_t
+    terms[c, SLIP] = 0.0
+    terms[c, FRICTION_FORCE] = g0
+    terms[c, FRICTION_FORCE + 1] = g1
+    terms[c, FRICTION_FORCE + 2] = g2
+    terms[c, FRICTION_SLOPE] = k_t * h + c_t
+    terms[c, FRICTION_MAGNITUDE] = size
+    terms[c, DISPLACEMENT] = x0
+    terms[c, DISPLACEMENT + 1] = x1
+    terms[c, DISPLACEMENT + 2] = x2
 
 
 @njit(**JIT)

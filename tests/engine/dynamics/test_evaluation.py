@@ -27,10 +27,11 @@ from engine.dynamics.evaluation import (
     evaluation_key,
     reused,
 )
+from engine.kernels.dynamics import contact_forces as kf
 
 BALL = shapes.icosphere(2, radius=0.5)  # 320 faces
 EPS = 0.01
-LAW = PaperSpring(damping=0.5, friction=0.5)
+LAW = PaperSpring(damping=0.5, friction=0.5, tangential_stiffness=0.0)  # regularised: by hand below
 SLIDING = {"velocity": (0.2, -0.1, 0.0), "angular_velocity": (0.3, 0.5, -2.0)}
 
 
@@ -94,13 +95,15 @@ def by_hand(scene: Scene, state, origins, law=LAW, found=None) -> dict:
 
 def summed(found, state, params, law) -> dict:
     """:func:`by_hand` for any contacts ``found`` of bodies in ``state = (positions,
-    velocities, angular velocities, lever origins)`` with ``params = (masses, epsilon)``."""
+    velocities, angular velocities, lever origins)`` with ``params = (masses, epsilon, ...)``
+    (regularised friction: the laws here have no tangential spring)."""
     x, v, w, origins = state
-    masses, eps = params
+    masses, eps = params[:2]
     n = len(x)
     normal, friction = np.zeros((n, 2, 3)), np.zeros((n, 2, 3))  # [:, 0] force, [:, 1] torque
     stiffness, energy = np.zeros((n, 3)), 0.0
-    kind, k, zeta, mu, v_slip = law.parameters()
+    kind, k, zeta, mu, v_slip, tangential = law.parameters()
+    assert tangential == 0.0 or mu == 0.0
     for pair, (a, b) in enumerate(found.bodies):
         ma, mb = masses[a], masses[b]
         m_red = mb if math.isinf(ma) else ma if math.isinf(mb) else ma * mb / (ma + mb)
@@ -283,15 +286,17 @@ def random_contacts(seed: int, n: int = 40, pairs: int = 150):
         bodies, offsets, rng.normal(size=(c, 3)), normals, rng.uniform(-0.005, 0.02, c), {}
     )
     state = tuple(rng.normal(size=(n, 3)) for _ in range(4))
-    return found, state, (masses, rng.uniform(0.005, 0.02, n))
+    return found, state, (masses, rng.uniform(0.005, 0.02, n), np.zeros((c, kf.HISTORY)), 0.0)
 
 
 @pytest.mark.parametrize(
     "law",
     [
-        PaperSpring(damping=0.3, friction=0.5),
+        PaperSpring(damping=0.3, friction=0.5, tangential_stiffness=0.0),
         LinearSpring(stiffness=500.0, damping=0.1, friction=0.0),
-        HertzSpring(stiffness=2e4, damping=0.2, friction=0.8, slip_velocity=0.05),
+        HertzSpring(
+            stiffness=2e4, damping=0.2, friction=0.8, slip_velocity=0.05, tangential_stiffness=0.0
+        ),
     ],
 )
 @pytest.mark.parametrize("seed", [0, 1])
@@ -343,7 +348,7 @@ def _masses(scene):
 
 
 def _law(scene):
-    scene.contact_model = PaperSpring(damping=0.5, friction=0.4)
+    scene.contact_model = PaperSpring(damping=0.5, friction=0.4, tangential_stiffness=0.0)
 
 
 def _kernel(scene):

@@ -40,7 +40,8 @@ LAWS = (PaperSpring, LinearSpring, HertzSpring)
 
 
 def on_plane(model, velocity=(0.0, 0.0, 0.0)) -> Scene:
-    scene = Scene(gravity=(0, 0, 0), contact_model=model)
+    # overlaps pushed apart at once (no gentle start): the first step shows the law
+    scene = Scene(gravity=(0, 0, 0), contact_model=model, separation_speed=math.inf)
     scene.add_plane(point=(0.3, 0.2, 0.0), size=4.0, divisions=1, epsilon=EPS_PLANE)
     scene.add_body(
         TETRA,
@@ -91,9 +92,10 @@ STIFF = {PaperSpring: 1000.0, LinearSpring: 300.0, HertzSpring: 4e4}
 @pytest.mark.parametrize("law", LAWS)
 def test_parameters_are_the_kernel_tuple(law):
     model = law(stiffness=250, damping=0.3, friction=0.6, slip_velocity=0.02)
-    kind, stiffness, damping, friction, slip = model.parameters()
-    assert (kind, stiffness, damping, friction, slip) == (law.kind, 250.0, 0.3, 0.6, 0.02)
-    assert all(type(v) is float for v in (stiffness, damping, friction, slip))
+    kind, stiffness, damping, friction, slip, tangential = model.parameters()
+    expected = (law.kind, 250.0, 0.3, 0.6, 0.02, 2.0 / 7.0)
+    assert (kind, stiffness, damping, friction, slip, tangential) == expected
+    assert all(type(v) is float for v in (stiffness, damping, friction, slip, tangential))
     assert type(kind) is int
 
 
@@ -105,7 +107,7 @@ def test_each_law_has_its_own_kernel_branch():
 def test_defaults_are_the_documented_ones():
     # the paper's K_s = 1,000; no damping; μ = 0.5; friction fades in below 1 cm/s
     for law in LAWS:
-        assert law().parameters()[1:] == (1000.0, 0.0, 0.5, 1e-2)
+        assert law().parameters()[1:] == (1000.0, 0.0, 0.5, 1e-2, 2.0 / 7.0)
 
 
 @pytest.mark.parametrize("law", LAWS)
@@ -131,8 +133,8 @@ def test_bad_parameters_are_rejected(law, field, value, message):
 
 @pytest.mark.parametrize("law", LAWS)
 def test_zero_damping_and_friction_and_integers_are_accepted(law):
-    model = law(stiffness=5, damping=0, friction=0, slip_velocity=1)
-    assert model.parameters()[1:] == (5.0, 0.0, 0.0, 1.0)
+    model = law(stiffness=5, damping=0, friction=0, slip_velocity=1, tangential_stiffness=0)
+    assert model.parameters()[1:] == (5.0, 0.0, 0.0, 1.0, 0.0)
 
 
 def test_models_are_frozen_and_the_scene_takes_only_models():
@@ -217,7 +219,7 @@ def test_the_damped_normal_force_never_pulls(law):
 @pytest.mark.parametrize("law", LAWS)
 def test_friction_is_the_regularised_coulomb_law(law, slide):
     mu, slip = 0.6, 0.01
-    model = law(stiffness=STIFF[law], friction=mu, slip_velocity=slip)
+    model = law(stiffness=STIFF[law], friction=mu, slip_velocity=slip, tangential_stiffness=0)
     scene = on_plane(model, velocity=(0.0, slide, 0.0))  # sliding along +y, no spin
     point, centre = the_contact(scene), scene.positions[1].copy()
     f_n = spring(model, DELTA, MASS, EPS_PLANE + EPS_BODY)[0]
