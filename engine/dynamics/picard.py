@@ -19,6 +19,11 @@
   numerical damping: with an undamped contact law a resting body keeps a small
   oscillation (mm/s) and never sleeps; the law's damping brings it to rest.
 
+Newton corrections first (:mod:`engine.dynamics.newton`): each iteration's next applied
+forces solve the contact forces linearised about the configuration it evaluated; a
+correction that does not halve the residual (a contact-set switch) hands the step to the
+relaxation below.
+
 Picard relaxation (the paper's "weighted average between the currently computed forces
 and the forces of the previous step"): the applied forces move towards each iteration's
 computed forces by a weight β — first 1/(1 + λ) from the contact stiffness, then
