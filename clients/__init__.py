@@ -3,7 +3,7 @@ Imports neither engine nor service; speaks msgpack (arrays as typed binary) by d
 
 from .aio import AsyncClient, AsyncRemoteScene
 from .errors import BuildFailed, BuildTimeout, ClientError, ProblemError, ServiceUnreachable
-from .models import BuildJob, ContactResult, Contacts, MeshInfo, SceneState
+from .models import BuildJob, ContactResult, Contacts, MeshInfo, Overlaps, SceneState
 from .sync import Client, RemoteScene
 
 __all__ = [
@@ -17,6 +17,7 @@ __all__ = [
     "ContactResult",
     "Contacts",
     "MeshInfo",
+    "Overlaps",
     "ProblemError",
     "RemoteScene",
     "SceneState",

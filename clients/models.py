@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["BuildJob", "ContactResult", "Contacts", "MeshInfo", "SceneState"]
+__all__ = ["BuildJob", "ContactResult", "Contacts", "MeshInfo", "Overlaps", "SceneState"]
 
 STATE = ("positions", "orientations", "velocities", "angular_velocities")
 
@@ -149,6 +149,23 @@ class Contacts:
 
 
 @dataclass(frozen=True)
+class Overlaps:
+    """What ``set_state`` found when it moved bodies: ``pairs (k, 2)`` int64, the body
+    pairs whose surfaces cross (overlap beyond the reach ε_a + ε_b), and ``largest``, the
+    largest overlap of any contact relative to its pair's reach (1: the surfaces meet)."""
+
+    pairs: np.ndarray
+    largest: float
+
+    @classmethod
+    def from_payload(cls, payload: dict | None) -> Overlaps | None:
+        if payload is None:
+            return None
+        pairs = np.asarray(payload["pairs"], np.int64).reshape(-1, 2)
+        return cls(pairs=pairs, largest=float(payload["largest"]))
+
+
+@dataclass(frozen=True)
 class SceneState:
     """A scene's state: ``positions (n, 3)``, ``orientations (n, 4)`` (w, x, y, z),
     ``velocities``, ``angular_velocities (n, 3)`` (rows: bodies, then planes), its
@@ -161,6 +178,7 @@ class SceneState:
     time: float
     steps: int
     stats: list = field(default_factory=list)
+    overlaps: Overlaps | None = None
 
     @classmethod
     def from_payload(cls, payload: dict) -> SceneState:
@@ -172,4 +190,5 @@ class SceneState:
             time=float(payload["time"]),
             steps=int(payload["steps"]),
             stats=list(payload.get("stats", [])),
+            overlaps=Overlaps.from_payload(payload.get("overlaps")),
         )

@@ -65,7 +65,10 @@ async def get_scene(scene_id: str, request: Request, owner: str = Depends(owner_
 @router.put("/{scene_id}/state")
 async def put_state(scene_id: str, request: Request, owner: str = Depends(owner_of)):
     """Overwrite any of ``positions (n, 3)``, ``orientations (n, 4)``, ``velocities``,
-    ``angular_velocities (n, 3)`` (n: bodies, then planes)."""
+    ``angular_velocities (n, 3)`` (n: bodies, then planes). The answer is the scene, with
+    ``overlaps`` when positions or orientations were set (else null): ``pairs``, the body
+    pairs whose surfaces now cross (overlap beyond the reach ε_a + ε_b), and ``largest``,
+    the largest overlap of any contact relative to its pair's reach."""
     state = request.app.state
     body = decode(await request.body(), request.headers.get("content-type"))
     if not isinstance(body, dict) or not set(body) & set(STATE):
@@ -79,12 +82,16 @@ async def put_state(scene_id: str, request: Request, owner: str = Depends(owner_
 
     def apply():
         with live.lock:
-            live.scene.set_state(**new)
+            report = live.scene.set_state(**new)
             if not state.store.save_state(owner, scene_id, pack_state(live.scene), live.steps):
                 raise NotFound(f"no scene {scene_id!r}")
+            return report
 
-    await state.engine.run("set_state", apply)
-    return respond(request, _summary(scene_id, live))
+    report = await state.engine.run("set_state", apply)
+    overlaps = None
+    if report is not None:
+        overlaps = {"pairs": report.pairs.tolist(), "largest": report.largest}
+    return respond(request, {**_summary(scene_id, live), "overlaps": overlaps})
 
 
 @router.post("/{scene_id}/step")

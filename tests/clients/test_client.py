@@ -7,7 +7,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from clients import AsyncClient, Client, MeshInfo, ProblemError, SceneState
+from clients import AsyncClient, Client, MeshInfo, Overlaps, ProblemError, SceneState
 from clients.calls import contacts_call
 from engine import Pose, build_tree, find_contacts_batch, shapes
 
@@ -91,7 +91,10 @@ def test_a_remote_scene_loop(service, wire):
         assert min(heights) < 0.52  # it fell onto the plane and rests on it
         assert abs(heights[-1] - heights[-2]) < 1e-3
         kicked = scene.set_state(velocities=np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 0.0]]))
-        assert kicked.velocities[0, 2] == 2.0
+        assert kicked.velocities[0, 2] == 2.0 and kicked.overlaps is None
+        sunk = scene.set_state(positions=np.array([[0.0, 0.0, 0.49], [0.0, 0.0, 0.0]]))
+        assert isinstance(sunk.overlaps, Overlaps) and sunk.overlaps.largest == 1.0
+        np.testing.assert_array_equal(sunk.overlaps.pairs, [[0, 1]])
         assert scene.state.steps == 50
         scene.delete()
         with pytest.raises(ProblemError) as error:

@@ -108,6 +108,7 @@ def test_state_can_be_overwritten_then_stepped(http):
     velocities = np.array([[0.0, 0.0, 1.0], [0.0, 0.5, 0.0], [0.0, 0.0, 0.0]])
     put = http.put(f"/v1/scenes/{scene_id}/state", json={"velocities": velocities.tolist()})
     assert put.status_code == 200, put.text
+    assert put.json()["overlaps"] is None  # no body moved
     local.set_state(velocities=velocities)
     _close(put.json()["state"], local)
     body = http.post(f"/v1/scenes/{scene_id}/step", json={"steps": 10}).json()
@@ -116,6 +117,26 @@ def test_state_can_be_overwritten_then_stepped(http):
     _close(body["state"], local)
     assert http.delete(f"/v1/scenes/{scene_id}").status_code == 204
     assert_problem(http.get(f"/v1/scenes/{scene_id}"), 404, "no scene")
+
+
+def test_moving_bodies_reports_the_pairs_whose_surfaces_cross(http):
+    mesh_id = _upload(http)
+    scene_id = http.post("/v1/scenes", json=_spec(mesh_id, "explicit")).json()["id"]
+    state = f"/v1/scenes/{scene_id}/state"
+    # ball 0 sinks 5 mm into the plane (row 2), ball 1 rests 5 mm into its halo: ε = 0.01
+    positions = [[0.0, 0.0, 0.495], [1.2, 0.0, 0.505], [0.0, 0.0, 0.0]]
+    put = http.put(state, json={"positions": positions})
+    assert put.status_code == 200, put.text
+    overlaps = put.json()["overlaps"]
+    assert overlaps["pairs"] == [[0, 2]]
+    assert overlaps["largest"] == pytest.approx(1.0)
+    local = _in_process("explicit")
+    report = local.set_state(positions=np.array(positions))
+    np.testing.assert_array_equal(report.pairs, overlaps["pairs"])
+    apart = [[0.0, 0.0, 0.6], [1.2, 0.0, 0.505], [0.0, 0.0, 0.0]]
+    overlaps = http.put(state, json={"positions": apart}).json()["overlaps"]
+    assert overlaps["pairs"] == []
+    assert overlaps["largest"] == pytest.approx(0.75, rel=1e-2)  # 15 mm of a 20 mm reach
 
 
 def test_bad_scene_requests(http):

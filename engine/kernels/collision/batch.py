@@ -332,7 +332,11 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             drift = motion_bound(lists.rotations[e], lists.shifts[e], rotation, shift, extent_b)
         listed = skin > 0.0 and e >= 0 and drift + margin < reach
         p0, c0, n0 = pair_offsets[t], contact_offsets[t], near_offsets[t]
-        if listed:
+        if listed and lists.offsets[e + 1] == lists.offsets[e]:
+            # an empty list: no leaf pair of the two bodies within reach (a far wall)
+            depth, unfoldings, n1, p1, c1 = 0, 0, n0, p0, c0
+            rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
+        elif listed:
             l0, l1 = lists.offsets[e], lists.offsets[e + 1]
             found, n, face_b = listed_contacts(
                 bank,
@@ -356,9 +360,11 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             )
             out = (pairs[min(p0, pairs.shape[0]) :], points[c0:], normals_out[c0:], overlaps[c0:])
             face_a = bank.face[a0:a1]
-            m, c = contact_kernel(
-                found, n, face_a, face_b, contact[0], contact[1], contact[2], setup, out
-            )
+            m, c = 0, 0
+            if n > 0:
+                m, c = contact_kernel(
+                    found, n, face_a, face_b, contact[0], contact[1], contact[2], setup, out
+                )
             p1, c1 = p0 + m, c0 + c
         else:
             body_a = (  # query_kernel's body layout; A in the query precision

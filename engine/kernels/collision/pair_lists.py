@@ -93,6 +93,8 @@ def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scrat
         else:
             kept[mk, 0], kept[mk, 1] = i, local[j]
             mk += 1
+    if mk + ms == 0:  # no listed pair close enough now
+        return found, 0, np.empty(0, np.int32)
     coords_b, frames_b, eps_b, face_b = _packed(bank, b0, moving[:u], rotation, shift, coords_a)
     for r in range(u):
         local[moving[r]] = -1

@@ -5,7 +5,9 @@ Contact laws (``law[0]``): ``PAPER`` — F_n = K_s · δ/(ε_a + ε_b) · √m_r
 spring (1 − |n|/ε with |n| the distance from the contact point to either surface is
 δ/(ε_a + ε_b), δ = ε_a + ε_b − d the overlap); ``LINEAR`` — F_n = k·δ; ``HERTZ`` — F_n =
 k·δ^{3/2}. Each adds optional normal damping −c·v_n with c = 2ζ√(k_eff·m_red), k_eff =
-∂F_n/∂δ (the normal force never pulls), and a tangential friction force capped by
+∂F_n/∂δ (the normal force never pulls, and the dashpot never pushes harder than the spring:
+F_n ≤ 2·F_spring, so the force is continuous at contact onset), and a tangential friction
+force capped by
 Coulomb's law, −μ·F_n·v_t/√(|v_t|² + v_slip²) (a regularised Coulomb law: no history, so a
 Picard iteration sees a function of the state only). ``law = (kind, stiffness, damping
 ratio ζ, friction μ, slip velocity)``.
@@ -32,8 +34,8 @@ ENERGY = 10  # the elastic energy of the contact's spring
 ACTIVE = 11  # 1.0 where the contact overlaps (δ > 0) and acts, else 0.0
 DAMPING_SLOPE = 12  # c_n = −∂F_n/∂v_n where the damping acts (F_n > 0), else 0
 FRICTION_SCALE = 13  # μ·F_n/s, s = √(|v_t|² + v_slip²) (0 without friction)
-SLIP = 14  # s
-TANGENT = 15  # 15:18 the sliding velocity v_t of B relative to A
+SLIP = 14  # s (a sliding spring: 1; a sticking one: 0)
+TANGENT = 15  # 15:18 the sliding velocity v_t of B relative to A (a sliding spring: ĝ)
 TANGENT_SPRING = 18  # k_t where the tangential spring sticks, else 0
 DISPLACEMENT = 19  # 19:22 the tangential spring's displacement ξ at the end of the step
 TERMS = 22
@@ -115,9 +117,12 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
             ratio = zeta if history[c, HISTORY_ALLOWANCE] == 0.0 else max(zeta, 1.0)
             if ratio > 0.0:
                 damping = 2.0 * ratio * np.sqrt(k_eff * m_red)
+                spring = f_n
                 f_n = f_n - damping * v_n
                 if f_n <= 0.0:
                     f_n, damping = 0.0, 0.0
+                elif f_n > 2.0 * spring:  # the dashpot pushes no harder than the spring
+                    f_n, damping, k_eff = 2.0 * spring, 0.0, 2.0 * k_eff
             t0, t1, t2 = u0 - v_n * n0, u1 - v_n * n1, u2 - v_n * n2
             terms[c, DAMPING_SLOPE] = damping
             terms[c, TANGENT] = t0
@@ -176,15 +181,21 @@ def _spring_friction(history, c, normal, tangent, h, f_n, mu, k_t, c_t, terms):
     cap = mu * f_n
     if size > cap:  # sliding: the force at Coulomb's cap, the spring stretched to match it
         scale = cap / size
+        # the capped force turns with the spring: its slopes are the spring's, scaled by
+        # cap/|g|, across its direction ĝ only (stored as TANGENT with SLIP 1)
+        terms[c, TANGENT] = g0 / size
+        terms[c, TANGENT + 1] = g1 / size
+        terms[c, TANGENT + 2] = g2 / size
+        terms[c, SLIP] = 1.0
         g0, g1, g2 = g0 * scale, g1 * scale, g2 * scale
         x0, x1, x2 = -g0 / k_t, -g1 / k_t, -g2 / k_t
         size = cap
-        terms[c, TANGENT_SPRING] = 0.0
-        terms[c, FRICTION_SCALE] = 0.0
+        terms[c, TANGENT_SPRING] = k_t * scale
+        terms[c, FRICTION_SCALE] = c_t * scale
     else:
         terms[c, TANGENT_SPRING] = k_t
         terms[c, FRICTION_SCALE] = c_t
-    terms[c, SLIP] = 0.0
+        terms[c, SLIP] = 0.0
     terms[c, FRICTION_FORCE] = g0
     terms[c, FRICTION_FORCE + 1] = g1
     terms[c, FRICTION_FORCE + 2] = g2

@@ -4,8 +4,10 @@ Picard iteration that solves them (``engine.dynamics.picard``).
 A backward Euler step of length h from velocities v₀ seeks forces F(x₀ + h·v₁, v₁) that,
 applied, give v₁ = v₀ + h·M⁻¹F. About the configuration of the last evaluation the contact
 forces change as −(K·Δx + C·Δv): K the springs' stiffness (k_n·nnᵀ per contact, plus k_t·P
-for a sticking tangential spring), C their velocity slopes (normal damping c_n·nnᵀ, a sticking
-spring's damping c_t·P, and the regularised friction's Jacobian
+for a sticking tangential spring, and for a sliding one, whose force μF_n·ĝ turns with the
+spring's g, (μF_n/|g|)·k_t·(P − ĝĝᵀ)), C their velocity slopes (normal damping c_n·nnᵀ, a
+tangential spring's damping c_t·P, scaled alike when sliding, and the regularised friction's
+Jacobian
 μF_n/s·(P − t·tᵀ/s²), P = I − nnᵀ, t the sliding velocity, s = √(|t|² + v_slip²)), each
 seen by the two bodies through J = [I | −[r]×] (r from the body's lever origin to the contact
 point). The velocity correction z then solves (M + h²K + h·C)·z = h·r, r the residual of

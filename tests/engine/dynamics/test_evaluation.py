@@ -87,7 +87,8 @@ def configuration(scene: Scene) -> tuple:
 def by_hand(scene: Scene, state, origins, law=LAW, found=None) -> dict:
     """The contact forces of ``state`` about ``origins``, summed here contact by contact
     from ``scene.contacts`` and the law as documented (the paper's spring, damping on the
-    approach speed, regularised Coulomb friction; a fixed body's mass is infinite)."""
+    approach speed, at most the spring's force, regularised Coulomb friction; a fixed body's
+    mass is infinite)."""
     x, q, v, w = state
     found = scene.contacts(x, q, False) if found is None else found
     return summed(found, (x, v, w, origins), (scene.masses, scene.epsilon), law)
@@ -123,7 +124,10 @@ def summed(found, state, params, law) -> dict:
             u = (v[b] + np.cross(w[b], p - x[b])) - (v[a] + np.cross(w[a], p - x[a]))
             v_n = float(u @ nrm)
             spring = k_eff * delta if kind != HertzSpring.kind else k * delta**1.5
-            f_n = max(spring - 2 * zeta * math.sqrt(k_eff * m_red) * v_n, 0.0)
+            # the dashpot never pulls, nor pushes harder than the spring
+            f_n = min(max(spring - 2 * zeta * math.sqrt(k_eff * m_red) * v_n, 0.0), 2 * spring)
+            if f_n == 2 * spring and zeta > 0:
+                k_eff = 2 * k_eff
             slide = u - v_n * nrm
             g = -mu * f_n * slide / math.sqrt(slide @ slide + v_slip**2)
             for body, sign in ((b, 1.0), (a, -1.0)):

@@ -215,6 +215,21 @@ def test_the_damped_normal_force_never_pulls(law):
     assert np.all(force == 0.0) and np.all(torque == 0.0)  # no pull, and no friction either
 
 
+@pytest.mark.parametrize("law", LAWS)
+def test_the_dashpot_never_pushes_harder_than_the_spring(law):
+    """Approaching fast, the damped force stops at twice the spring's: it goes to zero
+    with the overlap, so it is continuous at contact onset."""
+    zeta = 0.5
+    model = law(stiffness=STIFF[law], damping=zeta, friction=0.0)
+    f_spring, k_eff, _ = spring(model, DELTA, MASS, EPS_PLANE + EPS_BODY)
+    cancel = f_spring / (2 * zeta * math.sqrt(k_eff * MASS))  # the speed whose dashpot = spring
+    for speed, expected in ((0.5 * cancel, 1.5 * f_spring), (3.0 * cancel, 2.0 * f_spring)):
+        scene = on_plane(model, velocity=(0.0, 0.0, -speed))  # towards the plane
+        the_contact(scene)
+        force, _, _ = kick(scene)
+        np.testing.assert_allclose(force, [0.0, 0.0, expected], rtol=1e-12, atol=1e-12 * f_spring)
+
+
 @pytest.mark.parametrize("slide", [0.002, 0.5])  # below and above the slip velocity
 @pytest.mark.parametrize("law", LAWS)
 def test_friction_is_the_regularised_coulomb_law(law, slide):

@@ -120,3 +120,46 @@ def test_a_free_impact_with_friction_conserves_momentum(scheme, tangential):
     after_linear, after_angular = scene.momentum()
     np.testing.assert_allclose(after_linear, linear, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(after_angular, angular, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("stretch", [0.2, 3.0])  # the spring below and beyond Coulomb's cap
+def test_the_tangential_springs_slopes_are_the_derivative_of_its_force(stretch):
+    """One contact of a body on a fixed one with a tangential spring, sticking or sliding:
+    the change of its force under a small velocity change dv is −(h·K + C)·dv to first
+    order (the sliding force turns with the spring, its size stays μF_n)."""
+    from engine.kernels.dynamics import contact_forces as kf
+
+    h, mu, zeta, k_law = 1e-3, 0.5, 0.3, 1000.0
+    law = (kf.PAPER, k_law, zeta, mu, 1e-2, 2.0 / 7.0)
+    bodies, offsets = np.array([[0, 1]]), np.array([0, 1])
+    points, normals = np.array([[0.1, -0.2, 0.0]]), np.array([[0.0, 0.0, 1.0]])
+    overlaps, epsilon = np.array([1e-4]), np.array([0.002, 0.002])
+    mass = np.array([np.inf, 2.0])
+    k_t = 2.0 / 7.0 * k_law * np.sqrt(2.0) / 0.004
+    history = np.zeros((1, kf.HISTORY))
+    history[0, :3] = [1.0, 0.5, 0.0]  # ξ₀ along (2, 1, 0), sized against the cap
+    f_n = k_law * np.sqrt(2.0) / 0.004 * 1e-4
+    history[0, :3] *= stretch * mu * f_n / k_t / np.linalg.norm(history[0, :3])
+    positions = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 0.3]])
+    spins = np.zeros((2, 3))
+
+    def terms_at(velocity):
+        velocities = np.array([[0.0, 0.0, 0.0], velocity])
+        out = np.zeros((1, kf.TERMS))
+        state = (positions, velocities, spins, positions)
+        kf.contact_terms(bodies, offsets, points, normals, overlaps, state,
+                         (mass, epsilon, history, h), law, 0, 1, out)  # fmt: skip
+        return out
+
+    v = np.array([0.01, -0.02, 0.0])
+    base = terms_at(v)
+    sliding = base[0, kf.TANGENT_SPRING] < k_t
+    assert sliding == (stretch > 1.0)
+    for dv in ([1e-6, 0.0, 0.0], [0.0, 1e-6, 0.0]):
+        dv = np.array(dv)
+        change = terms_at(v + dv)[0, 3:6] - base[0, 3:6]
+        z = np.zeros((2, 6))
+        z[1, :3] = dv
+        predicted = np.zeros((2, 6))
+        kl.contact_product(bodies, offsets, points, normals, base, positions, z, h, 1.0, predicted)
+        np.testing.assert_allclose(change, -predicted[1, :3], rtol=1e-3, atol=1e-9 * mu * f_n)

@@ -82,3 +82,45 @@ def test_a_damped_box_comes_to_rest_and_sleeps_under_the_default_scheme():
     scene.add_body(shapes.box(), position=(0.0, 0.0, 0.6))
     slept = next((k for k in range(1500) if scene.step(1e-3).sleeping), None)
     assert slept is not None and np.isfinite(scene.positions).all()
+
+
+def _small_pile() -> tuple[Scene, float]:
+    """Eight bodies (3 cm boxes and 4 cm balls, ε = 2 mm, seeded orientations, apart) in
+    two layers dropped into a 14 cm bin of five planes; returns the scene and the bin's
+    half width."""
+    scene = Scene(sleep=True, contact_model=PaperSpring(damping=0.3))
+    half, eps = 0.07, 0.002
+    scene.add_plane(size=0.3, divisions=2, epsilon=eps)
+    for axis in (0, 1):
+        for side in (-1.0, 1.0):
+            point, normal = np.zeros(3), np.zeros(3)
+            point[axis], point[2], normal[axis] = side * half, 0.1, -side
+            scene.add_plane(point=point, normal=normal, size=0.3, divisions=2, epsilon=eps)
+    box, ball = shapes.box((0.03, 0.03, 0.02)), shapes.icosphere(1, radius=0.02)
+    rng = np.random.default_rng(7)
+    for k in range(8):
+        q = rng.normal(size=4)
+        x, y, z = -0.03 + 0.06 * (k % 2), -0.03 + 0.06 * (k // 2 % 2), 0.03 + 0.06 * (k // 4)
+        mesh = box if (k + k // 2) % 2 == 0 else ball
+        orientation = q / np.linalg.norm(q)
+        scene.add_body(
+            mesh, position=(x, y, z), orientation=orientation, density=800.0, epsilon=eps
+        )
+    return scene, half
+
+
+def test_a_small_pile_settles_without_escape_or_deep_overlap_and_sleeps():
+    """Issue 16: a pile of boxes and balls in a bin comes to rest under the default scheme,
+    never deeper than a quarter of a contact's reach, every body inside the bin, and then
+    every body sleeps (at rest: zero velocity)."""
+    scene, half = _small_pile()
+    free = ~scene.fixed
+    deepest, sleeping, steps = 0.0, 0, 0
+    while steps < 4000 and sleeping < free.sum():
+        stats = scene.step(5e-4)
+        deepest, sleeping, steps = max(deepest, stats.max_overlap), stats.sleeping, steps + 1
+    assert scene.sleep.asleep[free].all(), f"{scene.sleep.asleep[free].sum()} of 8 asleep"
+    assert deepest < 0.25
+    inside = np.abs(scene.positions[free, :2]) < half
+    assert inside.all() and (scene.positions[free, 2] > 0).all()
+    assert scene.kinetic_energy() < 1e-9  # J: 8 bodies of ~15 g, each well below 1 mm/s
