@@ -19,10 +19,12 @@ import numpy as np
 from engine.collision.configuration import Contacts
 from engine.dynamics.bodies import body_terms
 from engine.kernels.dynamics import contact_forces as kf
+from engine.kernels.dynamics import motion as kd
 from engine.workers import in_parts
 
 __all__ = [
     "Evaluation",
+    "MovedContacts",
     "WarmStart",
     "Wrench",
     "contact_forces",
@@ -95,6 +97,38 @@ class WarmStart:
     state: tuple
     origins: np.ndarray
     evaluation: Evaluation
+
+
+class MovedContacts:
+    """A search that finds nothing new: the ``contacts`` found at ``positions (n, 3)``,
+    ``orientations (n, 4)`` carried rigidly to any other configuration of the same bodies
+    (:func:`~engine.kernels.dynamics.motion.moved_contacts`: points move with both bodies,
+    normals turn with A, overlaps shrink by the relative motion along the normal). A
+    Picard iteration solves on such a frozen contact set, and a real search of its answer
+    decides whether it stands (:mod:`engine.dynamics.picard`)."""
+
+    def __init__(self, scene, contacts: Contacts, positions, orientations) -> None:
+        self.contacts = contacts
+        self.before = (positions.copy(), orientations.copy())
+        epsilon, bodies = scene.epsilon, contacts.bodies
+        self.reach = np.ascontiguousarray(epsilon[bodies[:, 0]] + epsilon[bodies[:, 1]])
+        self.counters = {
+            k: (v if k == "triangle_pairs" else 0) for k, v in contacts.counters.items()
+        }
+
+    def __call__(self, positions, orientations):
+        found = self.contacts
+        out = (
+            np.empty_like(found.points),
+            np.empty_like(found.normals),
+            np.empty_like(found.overlaps),
+        )
+        if len(found.points):
+            before = (found.points, found.normals, found.overlaps)
+            kd.moved_contacts(found.bodies, found.offsets, before, self.reach, self.before,
+                              (positions, orientations), out)  # fmt: skip
+        moved = Contacts(found.bodies, found.offsets, *out, self.counters)
+        return moved, None, False
 
 
 def evaluate(

@@ -24,6 +24,16 @@ forces solve the contact forces linearised about the configuration it evaluated;
 correction that does not halve the residual (a contact-set switch) hands the step to the
 relaxation below.
 
+Frozen contact sets (not in the paper): between searches, iterations evaluate the contacts
+of the last search carried rigidly with the bodies
+(:class:`~engine.dynamics.evaluation.MovedContacts`) — no search, and forces that change
+smoothly, so the iteration does not flip between contact sets. Once it settles on a
+frozen set, a search of that same configuration decides: if its forces pass Picard's test
+the step is accepted (the accepted forces are always a search's), else the iteration goes
+on from them on a new frozen set; after ``MAX_FREEZES`` sets every iteration searches. The
+implicit midpoint rule's first frozen set is the last step's midpoint contacts
+(:func:`_carried_contacts`), so a step whose contacts do not change costs one search.
+
 Picard relaxation (the paper's "weighted average between the currently computed forces
 and the forces of the previous step"): the applied forces move towards each iteration's
 computed forces by a weight β — first 1/(1 + λ) from the contact stiffness, then
@@ -64,7 +74,15 @@ import numpy as np
 
 from engine.collision.configuration import SEARCH_COUNTERS
 from engine.dynamics.bodies import body_terms, smallest_inertia
-from engine.dynamics.evaluation import WarmStart, Wrench, cross, evaluate, evaluation_key, reused
+from engine.dynamics.evaluation import (
+    MovedContacts,
+    WarmStart,
+    Wrench,
+    cross,
+    evaluate,
+    evaluation_key,
+    reused,
+)
 from engine.dynamics.history import ContactHistory, allowances, carried, govern
 from engine.dynamics.newton import Linearization
 from engine.kernels.dynamics import contact_forces as kf
@@ -83,6 +101,8 @@ NORMAL, FRICTION = 0, 1
 _BODIES_PER_PART = 2048  # bodies a worker thread advances at least (~0.3 ms)
 NEWTON_CONTRACTION = 0.5
 """A Newton correction must shrink the residual by this factor, else the step relaxes."""
+MAX_FREEZES = 3
+"""Frozen contact sets a step solves on before it iterates on searched forces only."""
 
 
 @dataclass(frozen=True)
@@ -93,7 +113,8 @@ class StepStats:
     converged : bool — Picard converged (always True for ``explicit``)
     picard_iterations : int — Picard iterations (1 for ``explicit``)
     evaluations : int — contact searches run: the first iteration of a step that follows
-        a converged step reuses that step's last evaluation (same configuration)
+        a converged step reuses that step's last evaluation (same configuration), and
+        iterations on a frozen contact set search nothing
     body_pairs : int — body pairs of the narrow phase, last evaluation
     contacts : int — merged contact points, last evaluation
     triangle_pairs : int — finest-level triangle pairs in contact, last evaluation
@@ -255,10 +276,18 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     recent: list[Wrench] = []  # the last computed totals
     newton: Linearization | None = Linearization(scene, start, dt)
     last_size = math.inf
+    # frozen contact sets (module docstring): the contacts of the last search, moved rigidly
+    freezes = 0 if isinstance(search, _Search) else MAX_FREEZES
+    frozen: MovedContacts | None = None
     while iterations < scene.max_picard_iterations:
         iterations += 1
         warm = reused(scene, key, start) if iterations == 1 else None
-        if warm is None:
+        if iterations == 1 and warm is None and freezes < MAX_FREEZES:
+            frozen = _carried_contacts(scene, key)  # the last step's, moved to its end
+            freezes += frozen is not None
+        if frozen is not None:
+            evaluation = evaluate(scene, guess, start[0], frozen, dt, history)
+        elif warm is None:
             evaluation = evaluate(scene, guess, start[0], search, dt, history)
             evaluations += 1
         elif history is not None:  # the same contacts; their springs start from this step
@@ -271,8 +300,9 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
         forceless = forceless and not stiffness.any()
         computed = (evaluation.normal, evaluation.friction)  # indexed by NORMAL, FRICTION
         found = evaluation.contacts.counters
-        counters.append(found if warm is None else _no_search(found))
+        counters.append(found if warm is None and frozen is None else _no_search(found))
         total = evaluation.normal.plus(evaluation.friction)
+        searched = frozen is None  # the forces of this configuration, not of a frozen set
         if applied is None:  # the step's start: predict its end (linearly implicit Euler)
             applied = newton.predicted(evaluation)
         else:
@@ -280,13 +310,19 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             mismatch = change[NORMAL].plus(change[FRICTION])
             # body forces alone, every time: the applied forces are the computed ones exactly
             settled = forceless or _settled(scene, total, mismatch, stiffness[:, 2], radius)
-            recent = [] if changed else [*recent[-5:], total]
-            if not settled and iterations > SWITCH_AFTER:
-                settled = _switch(scene, recent, applied, stiffness[:, 2], radius)
+            if searched:
+                recent = [] if changed else [*recent[-5:], total]
+                if not settled and iterations > SWITCH_AFTER:
+                    settled = _switch(scene, recent, applied, stiffness[:, 2], radius)
+            elif settled:  # solved on the frozen set: a search of this guess decides
+                frozen = None
+                continue
             converged = settled and not changed  # multiscale: nothing unfolded either
             if converged:
                 break
             size = float(np.linalg.norm(_flat(mismatch, radius)))
+            if searched and freezes < MAX_FREEZES:  # a new frozen set: the residual starts over
+                last_size = math.inf
             if newton is not None and (changed or size > NEWTON_CONTRACTION * last_size):
                 # not contracting (a contact-set switch) or the fronts moved: relax instead
                 newton, relaxed = None, [applied, _zero(applied)]
@@ -307,6 +343,11 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                         relaxed[part].torque + beta[part] * change[part].torque,
                     )
                 applied = relaxed[NORMAL].plus(relaxed[FRICTION])
+        if searched and freezes < MAX_FREEZES and newton is not None:
+            frozen, freezes = (
+                MovedContacts(scene, evaluation.contacts, guess[0], guess[1]),
+                freezes + 1,
+            )
         _advance(scene, start, applied.force, applied.torque, dt, guess)
     _restore(scene, guess)
     # the forces of the accepted configuration are the next step's first evaluation
@@ -315,6 +356,17 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     contacts, energy = evaluation.contacts, evaluation.energy
     summary = _summary(scene, contacts, counters, energy, converged, iterations)
     return {**summary, "evaluations": evaluations}
+
+
+def _carried_contacts(scene, key: tuple) -> MovedContacts | None:
+    """The contacts of the last step's last search (``scene.warm_start``, made with the
+    same ``key``) moved rigidly to any configuration, or None. The implicit midpoint rule
+    ends a step beyond the configuration it searched last (the midpoint): its contacts,
+    carried on, stand in for a search of the next step's start."""
+    warm = scene.warm_start
+    if warm is None or warm.key != key:
+        return None
+    return MovedContacts(scene, warm.evaluation.contacts, warm.state[0], warm.state[1])
 
 
 def _parts(applied: Wrench, relaxed: list[Wrench] | None) -> list[Wrench]:
@@ -480,10 +532,11 @@ def _extrapolate(scene, start, dt: float) -> None:
     start's centres; over the whole step they act about the midpoint's, so the spin gains
     dt·(x_start − x_mid) × F_contact — with it linear and angular momentum are conserved
     exactly, as the midpoint rule conserves every quadratic invariant. The last evaluation
-    (of the midpoint) is no longer the configuration's."""
+    (of the midpoint) is no longer the configuration's: ``scene.warm_start`` keeps it with
+    the midpoint's state, which the next step does not reuse as its start's forces (the
+    states differ) but carries on as a frozen contact set (:func:`_carried_contacts`)."""
     x0, q0, v0, w0 = start
     free = np.flatnonzero(~scene.fixed)
-    scene.warm_start = None
     if not len(free):
         return
     x1, q1, v1, w1 = (a[free] for a in _state(scene))

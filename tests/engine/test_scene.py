@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from engine import InvalidArgumentError, Scene, build_tree, scenarios, shapes
+from engine.dynamics import picard
 from engine.trees.halos import DEFAULT_RELATIVE_EPSILON
 
 SPHERE = shapes.icosphere(1, radius=0.5)
@@ -158,7 +159,8 @@ def test_the_pair_cache_changes_no_bit_of_a_trajectory():
         np.testing.assert_array_equal(getattr(plain, name), getattr(cached, name))
 
 
-def test_a_converged_step_hands_its_last_evaluation_to_the_next():
+def test_a_converged_step_hands_its_last_evaluation_to_the_next(monkeypatch):
+    monkeypatch.setattr(picard, "MAX_FREEZES", 0)  # every iteration searches: counts tell
     scene = scenarios.particle_particle(triangles=320, gap=0.005)
     stats = [scene.step(1e-3) for _ in range(20)]
     assert stats[0].evaluations == stats[0].picard_iterations  # nothing to reuse yet

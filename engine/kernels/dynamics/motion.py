@@ -178,3 +178,47 @@ def relaxation_products(previous, current, out):
         cc += c * c
         pp += p * p
     out[0], out[1], out[2], out[3] = ps, ss, cc, pp
+
+
+@njit(**JIT)
+def moved_contacts(bodies, offsets, found, reach, before, after, out):
+    """Contacts found at the configuration ``before`` carried rigidly to ``after``: each
+    contact's point moves with body A and with body B (``p_a = R_a R_a⁰ᵀ (p − x_a⁰) + x_a``,
+    likewise p_b), its normal turns with A, and its overlap shrinks by how far B's point
+    moved from A's along it: δ' = δ − n'·(p_b − p_a), at most ``reach (k,)`` (the pair's
+    ε_a + ε_b, as a search clips it). The new point is the middle of p_a and p_b.
+
+    ``bodies (k, 2)``, ``offsets (k + 1,)`` int64 as in a search's contacts; ``found =
+    (points, normals, overlaps)`` of ``c`` contacts (``(c, 3)``, ``(c, 3)``, ``(c,)``
+    float64); ``before``, ``after``: ``(positions (n, 3), orientations (n, 4))`` float64
+    of the bodies (centres of mass, unit quaternions); ``out`` as ``found``."""
+    points, normals, overlaps = found
+    out_points, out_normals, out_overlaps = out
+    x0, q0 = before
+    x1, q1 = after
+    r0, r1 = np.empty((3, 3)), np.empty((3, 3))
+    turn_a, turn_b = np.empty((3, 3)), np.empty((3, 3))
+    pa, pb = np.empty(3), np.empty(3)
+    for pair in range(bodies.shape[0]):
+        a, b = bodies[pair, 0], bodies[pair, 1]
+        for body, turn in ((a, turn_a), (b, turn_b)):
+            quaternion_rotation(q0[body], r0)
+            quaternion_rotation(q1[body], r1)
+            for i in range(3):
+                for j in range(3):
+                    turn[i, j] = r1[i, 0] * r0[j, 0] + r1[i, 1] * r0[j, 1] + r1[i, 2] * r0[j, 2]
+        for c in range(offsets[pair], offsets[pair + 1]):
+            for i in range(3):
+                pa[i] = x1[a, i]
+                pb[i] = x1[b, i]
+                for j in range(3):
+                    pa[i] += turn_a[i, j] * (points[c, j] - x0[a, j])
+                    pb[i] += turn_b[i, j] * (points[c, j] - x0[b, j])
+            along = 0.0
+            for i in range(3):
+                n = turn_a[i, 0] * normals[c, 0] + turn_a[i, 1] * normals[c, 1]
+                n += turn_a[i, 2] * normals[c, 2]
+                out_normals[c, i] = n
+                along += n * (pb[i] - pa[i])
+                out_points[c, i] = 0.5 * (pa[i] + pb[i])
+            out_overlaps[c] = min(overlaps[c] - along, reach[pair])
