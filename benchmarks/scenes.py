@@ -14,7 +14,8 @@ large pile unless ``--large-schemes`` names it), a 64-body "large" pile, short r
    scheme at its dt; MuJoCo (:func:`mujoco_scenes.mujoco_pile`: convex hulls, its own soft
    contacts, the same friction) on the same bodies and bin at the default scheme's dt and
    at 2 ms. Per run: wall time per simulated second, ms per step (all steps; the last 20 %:
-   the settled pile), mean Picard iterations, steps unconverged, tunnelling warnings,
+   the settled pile), mean Picard iterations, steps unconverged, tunnelling warnings, steps
+   split into sub-steps (``Scene(substeps=True)`` unless ``--no-substeps``),
    contacts at the end, the largest overlap over the run (fraction of the reach ε_a + ε_b;
    1 = surfaces touch or cross) and the steps that reached 1, MuJoCo's largest penetration,
    kinetic energy and bodies asleep at the end, bodies escaped (centre of mass outside the
@@ -118,9 +119,12 @@ def load_meshes() -> list[Mesh]:
     return meshes
 
 
-def build_pile(layout: PileLayout, meshes: list[Mesh], model: PaperSpring) -> Scene:
-    """The layout's bodies in its bin (floor first, then the four walls, then the bodies)."""
-    scene = Scene(sleep=True, contact_model=model)
+def build_pile(
+    layout: PileLayout, meshes: list[Mesh], model: PaperSpring, substeps: bool = False
+) -> Scene:
+    """The layout's bodies in its bin (floor first, then the four walls, then the bodies);
+    ``substeps``: a step that would move a surface by more than its ε is split."""
+    scene = Scene(sleep=True, contact_model=model, substeps=substeps)
     h, size, eps = layout.half_width, layout.wall_size, PILE_EPSILON
     scene.add_plane(size=size, divisions=layout.divisions, epsilon=eps)
     for point, normal in (
@@ -145,12 +149,14 @@ def escaped(positions: np.ndarray, half_width: float) -> int:
     return int(out.sum())
 
 
-def run_mrdem_pile(layout, meshes, model, scheme: str, dt: float, seconds: float) -> dict:
+def run_mrdem_pile(
+    layout, meshes, model, scheme: str, dt: float, seconds: float, substeps: bool
+) -> dict:
     """Step the pile ``seconds`` with ``scheme`` at ``dt``; the section's figures."""
-    scene = build_pile(layout, meshes, model)
+    scene = build_pile(layout, meshes, model, substeps)
     steps = max(1, round(seconds / dt))
     step_s, iterations = np.empty(steps), np.empty(steps)
-    largest_overlap, unconverged, crossing = 0.0, 0, 0
+    largest_overlap, unconverged, crossing, split = 0.0, 0, 0, 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", engine.TunnellingWarning)
         for s in range(steps):
@@ -161,6 +167,7 @@ def run_mrdem_pile(layout, meshes, model, scheme: str, dt: float, seconds: float
             largest_overlap = max(largest_overlap, stats.max_overlap)
             unconverged += not stats.converged
             crossing += stats.max_overlap >= CROSSING
+            split += stats.substeps > 1
     free = ~scene.fixed
     tail = step_s[-max(1, int(steps * SETTLED_FRACTION)) :]
     return {
@@ -180,6 +187,7 @@ def run_mrdem_pile(layout, meshes, model, scheme: str, dt: float, seconds: float
         "contacts_end": stats.contacts,
         "max_overlap_run": largest_overlap,
         "crossing_steps": crossing,
+        "substepped_steps": split,
         "kinetic_energy_end_j": scene.kinetic_energy(),
         "sleeping_end": stats.sleeping,
         "escaped": escaped(scene.positions[free], layout.half_width),
@@ -224,7 +232,9 @@ def run_mujoco_pile(layout, meshes, scene, dt: float, seconds: float, friction: 
     }
 
 
-def pile_section(count: int, schemes: dict, seconds: float, model: PaperSpring) -> dict:
+def pile_section(
+    count: int, schemes: dict, seconds: float, model: PaperSpring, substeps: bool
+) -> dict:
     """mrdem with each ``schemes`` entry (scheme → dt) and MuJoCo at the default scheme's
     dt and at its own 2 ms, on a pile of ``count`` bodies; the ratios of wall time per
     simulated second (mrdem over each MuJoCo run)."""
@@ -232,7 +242,7 @@ def pile_section(count: int, schemes: dict, seconds: float, model: PaperSpring) 
     meshes = load_meshes()
     rows = []
     for scheme, dt in schemes.items():
-        rows.append(run_mrdem_pile(layout, meshes, model, scheme, dt, seconds))
+        rows.append(run_mrdem_pile(layout, meshes, model, scheme, dt, seconds, substeps))
         print(f"  {scheme} dt {dt:g}: {rows[-1]['wall_total_s']:.1f} s", flush=True)
     reference = build_pile(layout, meshes, model)
     reference_dt = schemes.get(DEFAULT_SCHEME, min(schemes.values()))
@@ -352,6 +362,7 @@ PILE_COLUMNS = [  # (header, key, format)
     ("wall/sim s", "wall_per_simulated_second_s", ".2f"), ("ms/step", "ms_per_step", ".3f"),
     ("settled ms/step", "settled_ms_per_step", ".3f"), ("Picard", "picard_mean", ".2f"),
     ("unconv", "unconverged_steps", "d"), ("tunnel", "tunnelling_warnings", "d"),
+    ("split", "substepped_steps", "d"),
     ("contacts", "contacts_end", "d"), ("max overlap", "max_overlap_run", ".3f"),
     ("crossing", "crossing_steps", "d"), ("MJ pen mm", "penetration_run_mm", ".2f"),
     ("KE J", "kinetic_energy_end_j", ".2e"), ("asleep", "sleeping_end", "d"),
@@ -448,6 +459,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--friction", type=float, default=0.5, help="Coulomb μ of the piles")
     p.add_argument("--large", type=int, help="bodies of the large pile (512; quick 64)")
     p.add_argument("--skip-large", action="store_true")
+    p.add_argument(
+        "--no-substeps",
+        dest="substeps",
+        action="store_false",
+        help="never split a step whose surfaces would move more than ε (Scene(substeps=False))",
+    )
     p.add_argument("--angles", type=float, nargs="+", default=[10, 20, 25, 30, 35])
     p.add_argument("--ramp-seconds", type=float, help="simulated s per ramp (1.0; quick 0.2)")
     p.add_argument("--output", type=Path, default=OUT / "scenes.json")
@@ -482,11 +499,13 @@ def main(argv=None) -> None:
     }
 
     print("pile:", flush=True)
-    results["pile"] = pile_section(48, schemes, args.seconds, model)
+    results["pile"] = pile_section(48, schemes, args.seconds, model, args.substeps)
     print_pile("pile", results["pile"])
     if not args.skip_large:
         print(f"\nlarge pile ({args.large} bodies):", flush=True)
-        results["large_pile"] = pile_section(args.large, large_schemes, args.seconds, model)
+        results["large_pile"] = pile_section(
+            args.large, large_schemes, args.seconds, model, args.substeps
+        )
         print_pile("large pile", results["large_pile"])
 
     results["ramp"] = [

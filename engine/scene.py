@@ -123,8 +123,8 @@ class Scene:
         :func:`engine.dynamics.picard.travel`)
     separation_speed : float — the largest speed at which overlaps present when the state
         is set from outside (bodies added, ``set_state``) are let go (m/s; default
-        :data:`~engine.dynamics.history.DEFAULT_SEPARATION_SPEED`: ``inf``, at once, as the
-        spring pushes; 0.5 is a gentle start)
+        :data:`~engine.dynamics.history.DEFAULT_SEPARATION_SPEED`, 0.5; ``inf``: at once, as
+        the spring pushes)
     skin : float — the multiresolution search keeps, per body pair, the leaf pairs within
         ε_a + ε_b + skin·(ε_a + ε_b) and evaluates only those while the pair has moved
         by less than that skin (:class:`~engine.collision.pair_cache.PairCache`: exactly the same

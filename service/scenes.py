@@ -239,16 +239,25 @@ def build_scene(spec: dict, tree_of, threads: int) -> Scene:
 
 
 def pack_state(scene: Scene) -> bytes:
-    """The scene's state arrays and time as ``.npz`` bytes (no pickle)."""
+    """The scene's state arrays, time and whether its next step starts gently (overlaps
+    let go at the separation speed) as ``.npz`` bytes (no pickle)."""
     buffer = io.BytesIO()
-    np.savez(buffer, time=np.float64(scene.time), **{k: getattr(scene, k) for k in STATE})
+    np.savez(
+        buffer,
+        time=np.float64(scene.time),
+        gentle_start=np.bool_(scene.gentle_start),
+        **{k: getattr(scene, k) for k in STATE},
+    )
     return buffer.getvalue()
 
 
 def restore_state(scene: Scene, blob: bytes) -> None:
+    """Put ``scene`` back in the state of a :func:`pack_state` snapshot: a restore is not a
+    change from outside, so the next step starts gently only if it would have."""
     with np.load(io.BytesIO(blob), allow_pickle=False) as data:
         scene.set_state(**{k: data[k] for k in STATE})
         scene.time = float(data["time"])
+        scene.gentle_start = bool(data["gentle_start"]) if "gentle_start" in data else False
 
 
 def state_of(scene: Scene) -> dict:

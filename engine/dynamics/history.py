@@ -9,8 +9,11 @@ allowances of a gentle start (:mod:`engine.kernels.dynamics.history`).
   contact that stops acting loses its spring.
 * **Allowances** (a gentle start): after the state is set from outside (bodies added,
   ``Scene.set_state`` with positions or orientations), each contact of the next step's
-  start gets its overlap as an allowance: its spring acts on δ − allowance only, so it
-  starts relaxed. Each step then lets go of v·dt/2 of every allowance (v the scene's
+  start that is not closing gets its overlap as an allowance: its spring acts on
+  δ − allowance only, so it starts relaxed. (A closing contact, a collision under way when
+  the state was set, keeps its spring: an allowance would let the bodies pass into each
+  other, and the speed cap below would brake a body on its way in.) Each step then lets
+  go of v·dt/2 of every allowance (v the scene's
   ``separation_speed``), so the spring's rest point moves apart at v/2, and while it has an
   allowance the contact is at least critically damped (ζ ≥ 1), so the bodies follow it
   without overshooting it where the step resolves the spring. Where it does not (a small
@@ -27,7 +30,6 @@ last one (``Scene.contact_history``) and drops it when the state is set from out
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,9 +49,9 @@ __all__ = [
     "overlap_report",
 ]
 
-DEFAULT_SEPARATION_SPEED = math.inf
-"""m/s: the fastest that overlaps found after the state is set are let go (inf: no gentle
-start; give a speed such as 0.5 to have one)."""
+DEFAULT_SEPARATION_SPEED = 0.5
+"""m/s: the fastest that overlaps found after the state is set are let go (``inf``: no
+gentle start, each spring pushes its overlap apart at once)."""
 
 
 @dataclass(frozen=True)
@@ -178,9 +180,14 @@ def carried(evaluation, release: float, midpoint: bool) -> np.ndarray:
     return out
 
 
-def allowances(evaluation) -> np.ndarray:
+def allowances(evaluation, configuration) -> np.ndarray:
     """(c, HISTORY) float64: ``evaluation.history`` with each contact's allowance for a
-    gentle start: its whole overlap (module docstring)."""
+    gentle start: its whole overlap, unless it is closing (module docstring).
+    ``configuration``: the positions, orientations, velocities and angular velocities it
+    was evaluated at."""
     out = evaluation.history.copy()
-    kh.initial_allowance(evaluation.contacts.overlaps, out)
+    found = evaluation.contacts
+    x, _, v, w = configuration
+    kh.initial_allowance(found.bodies, found.offsets, (found.points, found.normals, found.overlaps),
+                         (x, v, w), out)  # fmt: skip
     return out

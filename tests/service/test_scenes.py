@@ -321,3 +321,21 @@ def test_mass_properties_from_the_mesh_the_hull_or_the_caller(http):
     for _ in range(20):
         local.step(1e-3)
     _close(stepped["state"], local, atol=1e-12)
+
+
+def test_a_snapshot_keeps_whether_the_next_step_starts_gently():
+    """Restoring a snapshot (a restart, a rolled-back step) is not a change from outside:
+    the next step starts gently exactly when it would have."""
+    from service.scenes import pack_state, restore_state
+
+    built = _in_process("explicit")  # bodies just added: the next step starts gently
+    assert built.gentle_start
+    fresh = pack_state(built)
+    built.step(2e-3)
+    assert not built.gentle_start
+    stepped = pack_state(built)
+    other = _in_process("explicit")
+    restore_state(other, stepped)
+    assert not other.gentle_start
+    restore_state(other, fresh)
+    assert other.gentle_start

@@ -164,7 +164,7 @@ def test_the_paper_law_uses_the_reduced_mass_and_acts_equally_on_both_bodies():
     """Two free bodies: the apex of one tetrahedron a gap above the top face of another
     (upside down: apex at the origin, top face at z = 0.8 covering the axis)."""
     model = PaperSpring(friction=0.0)
-    scene = Scene(gravity=(0, 0, 0), contact_model=model)
+    scene = Scene(gravity=(0, 0, 0), contact_model=model, separation_speed=math.inf)
     m_low, m_up = 3.0, 1.5
     scene.add_body(
         TETRA, position=COM, mass=m_low, inertia=(J, J, J), center_of_mass=COM, epsilon=EPS_PLANE
