@@ -246,7 +246,7 @@ def test_a_resting_stack_stays_put(scheme):
 def test_a_resting_stack_stays_put_for_100k_steps(scheme):
     """Found by this test: at step 68,156 the implicit iterates flipped between two merged
     contact sets (32 and 33 contacts) for all 50 iterations; Picard now settles on such a
-    switch (``engine.dynamics.picard._switch``) and every step converges."""
+    switch (``engine.dynamics.relaxation.switch``) and every step converges."""
     _long_resting_run(scheme, 100_000)
 
 

@@ -354,7 +354,7 @@ def moved_levers(old, new, normal, body_force, friction, out):
 
 @njit(**JIT)
 def settled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol, weight):
-    """Picard's convergence test (see ``engine.dynamics.picard._settled``): every free body's
+    """Picard's convergence test (see ``engine.dynamics.relaxation.settled``): every free body's
     force mismatch within ``tolerance`` of the forces acting on it, size_f = max(|F|,
     gross + body_size), and its torque mismatch within ``tolerance`` of max(|τ|, R·size_f),
     each plus a floor ``atol · max(max size_f, weight)`` (times R for torques).

@@ -160,50 +160,6 @@ def test_a_converging_step_is_not_halved():
     assert stats.converged and stats.halvings == 0
 
 
-# ------------------------------------------------------------------ settling on a switch
-def _stack() -> Scene:
-    """A plane and two boxes on it, one on the other (only the bodies matter here)."""
-    scene = Scene(scheme="implicit-surrogate", contact_model=PaperSpring(damping=0.5))
-    scene.add_plane(size=6.0, divisions=2, epsilon=0.01)
-    box = shapes.box()
-    scene.add_body(box, position=(0.0, 0.0, 0.52), epsilon=0.017)
-    scene.add_body(box, position=(0.1, 0.05, 1.55), epsilon=0.017)
-    return scene
-
-
-def _two_states(scene, rng):
-    n = len(scene)
-    base = (rng.normal(size=(n, 3)) * 5.0, rng.normal(size=(n, 3)))
-    jump = (np.zeros((n, 3)), np.zeros((n, 3)))
-    jump[0][1:] = rng.normal(size=(n - 1, 3))  # about 10 % of the free bodies' forces
-    a = base
-    b = (base[0] + jump[0], base[1] + jump[1])
-    return a, b
-
-
-def test_picard_settles_on_a_contact_set_switch_and_only_there():
-    """Computed forces that alternate between two states A and B, with the applied forces
-    between them, are a settled step; a third state, too few iterations, or applied forces
-    off the segment A–B are not."""
-    from engine.dynamics.picard import _switch
-
-    scene = _stack()
-    rng = np.random.default_rng(3)
-    a, b = _two_states(scene, rng)
-    gross, radius = np.full(len(scene), 9.81), np.ones(len(scene))
-    middle = tuple(0.3 * x + 0.7 * y for x, y in zip(a, b, strict=True))
-    assert _switch(scene, [a, b, a, b], middle, gross, radius)
-    assert _switch(scene, [b, b, a, a, b, b], a, gross, radius)  # period 4, an end
-    assert not _switch(scene, [a, a, b, b], middle, gross, radius)  # one change: a transition
-    assert not _switch(scene, [a, a, a, a, b, b], middle, gross, radius)
-    assert not _switch(scene, [a, b, a], middle, gross, radius)  # too few
-    off = (middle[0] + 3.0, middle[1])
-    assert not _switch(scene, [a, b, a, b], off, gross, radius)
-    c = (b[0] + 2.0 * (b[0] - a[0]), b[1])
-    assert not _switch(scene, [a, b, c, b], middle, gross, radius)  # three states
-    assert not _switch(scene, [a, a, a, b], middle, gross, radius)  # B seen once
-
-
 @pytest.mark.parametrize("scheme", ["explicit", "implicit"])
 def test_bodies_advanced_in_parts_on_threads_match_one_thread(scheme, monkeypatch):
     """The motion update split over worker threads (every part one body long here) gives
