@@ -39,8 +39,7 @@ between the currently computed forces and the forces of the previous step", with
 weights) conserves momentum at every iteration too. Converged when no body's computed force
 or torque differs from the applied one by more than ``picard_tolerance`` (1 %) of the
 forces acting on it. A step that does not converge within ``max_picard_iterations`` says so
-in its :class:`StepStats`;
-with ``max_halvings > 0`` it is redone as two half steps.
+in its :class:`StepStats`; with ``max_halvings > 0`` it is redone as two half steps.
 
 Warm start across steps: a converged step ends in the configuration it evaluated last,
 so the next step's first iteration reuses that evaluation, kept in the scene's declared
