@@ -16,6 +16,15 @@ from engine import (
 from engine.collision.contacts import FAR_APART, far_apart
 
 
+@pytest.fixture(autouse=True)
+def small_tasks(monkeypatch):
+    """Worker chunks of 64 pairs (the default, 256, keeps these few hundred pairs on one
+    thread): the threaded paths stay tested."""
+    from engine.collision import batch
+
+    monkeypatch.setattr(batch, "_PAIRS_PER_TASK", 64)
+
+
 @pytest.fixture(scope="module")
 def trees():
     return batch_trees()
