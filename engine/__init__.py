@@ -22,9 +22,11 @@ from engine.collision import (
     mesh_distance,
 )
 from engine.dynamics import (
+    DEFAULT_SEPARATION_SPEED,
     ContactModel,
     HertzSpring,
     LinearSpring,
+    OverlapReport,
     PaperSpring,
     StepStats,
     TunnellingWarning,
@@ -62,9 +64,11 @@ __all__ = [
     "ContactModel",
     "HertzSpring",
     "LinearSpring",
+    "OverlapReport",
     "PaperSpring",
     "SCHEMES",
     "DEFAULT_SCHEME",
+    "DEFAULT_SEPARATION_SPEED",
     "Scene",
     "SceneState",
     "StepStats",

@@ -18,6 +18,7 @@ properties: ``density`` or ``mass``, with optional ``inertia`` and ``center_of_m
 from __future__ import annotations
 
 import io
+import math
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -26,6 +27,7 @@ import numpy as np
 
 from engine import (
     DEFAULT_SCHEME,
+    DEFAULT_SEPARATION_SPEED,
     SCHEMES,
     EngineError,
     HertzSpring,
@@ -86,6 +88,8 @@ def parse_spec(body, max_bodies: int) -> dict:
         "kernel": choice(body.get("kernel", "hybrid"), "kernel", KERNELS),
         "max_halvings": number(body.get("max_halvings", 0), "max_halvings", 0, 8, integer=True),
         "substeps": flag(body.get("substeps", False), "substeps"),
+        # null: no gentle start (overlaps pushed apart at once)
+        "separation_speed": _speed(body.get("separation_speed", DEFAULT_SEPARATION_SPEED)),
         "contact_model": {
             "law": choice(law.get("law", "paper"), "contact_model.law", LAWS),
             **{
@@ -95,12 +99,26 @@ def parse_spec(body, max_bodies: int) -> dict:
                     ("damping", 0.0),
                     ("friction", 0.5),
                     ("slip_velocity", 1e-2),
+                    ("tangential_stiffness", 2.0 / 7.0),
                 )
             },
         },
     }
     LAWS[spec["contact_model"]["law"]](**_law_parameters(spec))  # the engine's own checks
     return spec
+
+
+def _speed(value) -> float | None:
+    """``separation_speed``: a finite number > 0 (m/s), or None (JSON null) for none."""
+    if value is None:
+        return None
+    real = isinstance(value, int | float) and not isinstance(value, bool)
+    if not (real and math.isfinite(value) and value > 0):
+        raise Unprocessable(
+            f"separation_speed must be a finite number > 0 (m/s), or null for no gentle"
+            f" start; got {value!r}"
+        )
+    return float(value)
 
 
 def _law_parameters(spec: dict) -> dict:
@@ -206,6 +224,7 @@ def build_scene(spec: dict, tree_of, threads: int) -> Scene:
         max_halvings=spec["max_halvings"],
         threads=threads,
         substeps=spec.get("substeps", False),
+        separation_speed=_separation(spec),
     )
     bodies = spec["bodies"]
     start = 0
@@ -236,6 +255,13 @@ def build_scene(spec: dict, tree_of, threads: int) -> Scene:
     for p in spec["planes"]:
         scene.add_plane(p["point"], p["normal"], p["size"], p["divisions"], spec["epsilon"])
     return scene
+
+
+def _separation(spec: dict) -> float:
+    """The engine's ``separation_speed`` of a specification (``inf`` for null; specs
+    stored before the setting existed take the default)."""
+    speed = spec.get("separation_speed", DEFAULT_SEPARATION_SPEED)
+    return math.inf if speed is None else float(speed)
 
 
 def pack_state(scene: Scene) -> bytes:

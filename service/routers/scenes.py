@@ -35,9 +35,12 @@ async def create_scene(request: Request, owner: str = Depends(owner_of)):
     "center_of_mass" (mesh frame; needs "mass"), "epsilon" (a number, or "auto"), "fixed"}],
     "planes": [{"point", "normal", "size"}], "gravity", "epsilon" (of the planes; absent:
     the default rule), "dt", "scheme", "kernel", "max_halvings", "substeps" (split a step
-    that would move a body by more than its ε), "contact_model": {"law": "paper" | "linear"
-    | "hertz", "stiffness", "damping", "friction", "slip_velocity"}}`` → 201 ``{"id", …,
-    "mass_source", "epsilon"}`` (per row: bodies, then planes)."""
+    that would move a body by more than its ε), "separation_speed" (m/s at which overlaps
+    present when bodies are placed are let go; default 0.5, null: at once),
+    "contact_model": {"law": "paper" | "linear" | "hertz", "stiffness", "damping",
+    "friction", "slip_velocity", "tangential_stiffness" (k_t/k_n of the static-friction
+    spring, default 2/7; 0: the regularised law)}}`` → 201 ``{"id", …, "mass_source",
+    "epsilon"}`` (per row: bodies, then planes)."""
     state = request.app.state
     spec = parse_spec(
         decode(await request.body(), request.headers.get("content-type")),

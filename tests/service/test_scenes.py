@@ -146,6 +146,9 @@ def test_bad_scene_requests(http):
     body0 = good["bodies"][0]
     cases = [
         ({**good, "bodies": []}, 422, "at least one body"),
+        ({**good, "separation_speed": 0}, 422, "or null for no gentle start"),
+        ({**good, "separation_speed": "fast"}, 422, "separation_speed must be a finite"),
+        ({**good, "contact_model": {"tangential_stiffness": -1}}, 422, "tangential_stiffness"),
         ({**good, "bodies": [{**body0, "mesh": "cafe"}]}, 404, "no mesh 'cafe'"),
         ({**good, "bodies": [{**body0, "density": 1.0, "mass": 1.0}]}, 422, "not both"),
         ({**good, "bodies": [{**body0, "orientation": [2, 0, 0, 0]}]}, 422, "unit quaternion"),
@@ -321,6 +324,27 @@ def test_mass_properties_from_the_mesh_the_hull_or_the_caller(http):
     for _ in range(20):
         local.step(1e-3)
     _close(stepped["state"], local, atol=1e-12)
+
+
+def test_the_gentle_start_and_the_friction_law_are_scene_settings(http):
+    """``separation_speed`` (default 0.5 m/s, null: none) and the contact model's
+    ``tangential_stiffness`` reach the engine: a ball sunk 5 mm into the plane is let go
+    at 0.5 m/s at most by default and pushed out faster without a gentle start."""
+    mesh_id = _upload(http)
+    fastest = {}
+    for speed in ("default", None):
+        spec = _spec(mesh_id, "implicit-surrogate")
+        spec["bodies"] = [{"mesh": mesh_id, "position": [0, 0, 0.495]}]
+        spec["contact_model"] = {"law": "paper", "tangential_stiffness": 0.0}
+        if speed is None:
+            spec["separation_speed"] = None
+        created = http.post("/v1/scenes", json=spec)
+        assert created.status_code == 201, created.text
+        assert created.json()["spec"]["separation_speed"] == (0.5 if speed else None)
+        assert created.json()["spec"]["contact_model"]["tangential_stiffness"] == 0.0
+        body = http.post(f"/v1/scenes/{created.json()['id']}/step", json={"steps": 5}).json()
+        fastest[speed] = max(abs(s[2]) for s in np.asarray(body["state"]["velocities"]))
+    assert fastest["default"] <= 0.5 + 1e-9 < fastest[None]
 
 
 def test_a_snapshot_keeps_whether_the_next_step_starts_gently():
