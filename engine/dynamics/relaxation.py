@@ -63,9 +63,10 @@ def first_weights(scene, stiffness, radius, dt: float) -> list[float]:
     return [1.0 / (1.0 + gain_n), 1.0 / (1.0 + gain_t)]
 
 
-def settled(scene, computed, mismatch, gross, radius) -> bool:
+def settled(scene, computed, mismatch, gross, radius, tighter: float = 1.0) -> bool:
     """Self-consistent: every free body's computed force and torque differ from the applied
-    ones (``mismatch``) by at most ``scene.picard_tolerance`` of the forces acting on it —
+    ones (``mismatch``) by at most ``tighter`` × ``scene.picard_tolerance`` of the forces
+    acting on it —
     the larger of its net force and the sum of its contact forces' magnitudes ``gross
     (n,)`` plus its weight (a body squeezed between equal and opposite contacts has a
     near-zero net force; relative to it, no iteration would ever settle) — and torques by
@@ -78,7 +79,7 @@ def settled(scene, computed, mismatch, gross, radius) -> bool:
         bodies.size,
         radius,
         scene.fixed,
-        scene.picard_tolerance,
+        tighter * scene.picard_tolerance,
         ATOL,
         bodies.weight,
     )
