@@ -102,7 +102,10 @@ NEWTON_CONTRACTION = 0.5
 MAX_FREEZES = 3
 """Frozen contact sets a step solves on before it iterates on searched forces only."""
 FROZEN_TOLERANCE = 0.1
-"""A frozen set's iteration settles at this fraction of ``picard_tolerance``."""
+"""A frozen set's iteration settles at this fraction of ``picard_tolerance`` …"""
+FROZEN_TIGHT_ITERATIONS = 4
+"""… within its first this many iterations, and after them at the tolerance itself (a set
+whose springs flip between sticking and sliding need not be solved so far)."""
 
 
 @dataclass(frozen=True)
@@ -279,12 +282,14 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     # frozen contact sets (module docstring): the contacts of the last search, moved rigidly
     freezes = 0 if isinstance(search, _Search) else MAX_FREEZES
     frozen: MovedContacts | None = None
+    frozen_at = 0  # the iteration that first evaluated the current frozen set
     while iterations < scene.max_picard_iterations:
         iterations += 1
         warm = reused(scene, key, start) if iterations == 1 else None
         if iterations == 1 and warm is None and freezes < MAX_FREEZES:
             frozen = _carried_contacts(scene, key)  # the last step's, moved to its end
             freezes += frozen is not None
+            frozen_at = iterations
         if frozen is not None:
             evaluation = evaluate(scene, guess, start[0], frozen, dt, history)
         elif warm is None:
@@ -311,7 +316,8 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             # body forces alone, every time: the applied forces are the computed ones exactly
             # a frozen set is solved tighter (its iterations search nothing): the search
             # then checks an answer within FROZEN_TOLERANCE of the set's own fixed point
-            tighter = 1.0 if searched else FROZEN_TOLERANCE
+            on_set = iterations - frozen_at  # iterations on this frozen set so far
+            tighter = 1.0 if searched or on_set > FROZEN_TIGHT_ITERATIONS else FROZEN_TOLERANCE
             settled = forceless or rx.settled(
                 scene, total, mismatch, stiffness[:, 2], radius, tighter
             )
@@ -353,6 +359,7 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                 MovedContacts(scene, evaluation.contacts, guess[0], guess[1]),
                 freezes + 1,
             )
+            frozen_at = iterations + 1  # its first evaluation is the next iteration's
         _advance(scene, start, applied.force, applied.torque, dt, guess)
     _restore(scene, guess)
     # the forces of the accepted configuration are the next step's first evaluation
