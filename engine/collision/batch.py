@@ -36,8 +36,8 @@ MAX_LEVELS = 32
 _PAIRS_PER_TASK = 256
 """Below this many pairs per worker, one thread is faster. Most pairs of a scene can be
 cheap (a body and a far wall: an empty list, issue 16): the 48-object pile's 330 pairs took
-0.88–1.08 ms a search on 1 and 2 threads split in 5 chunks at 64 pairs a chunk, 0.65 ms at
-256 (one chunk), and its 1.5 s run went from 8.78 to 7.07 s."""
+1.00–1.08 ms a search on 2 threads in 5 chunks of 64 pairs, 0.65 ms in one chunk, and its
+1.5 s run went from 8.78 to 7.07 s."""
 # chunks of pairs a worker thread takes in turn, on average (on the grid with 16 threads, 4
 # kept 12.9-13.8 threads busy and 8 kept 14.2-14.9; BENCHMARKS.md, issue 15, thirteenth step)
 _CHUNKS_PER_THREAD = 8

@@ -180,14 +180,9 @@ def carried(evaluation, release: float, midpoint: bool) -> np.ndarray:
     return out
 
 
-def allowances(evaluation, configuration) -> np.ndarray:
+def allowances(evaluation) -> np.ndarray:
     """(c, HISTORY) float64: ``evaluation.history`` with each contact's allowance for a
-    gentle start: its whole overlap, unless it is closing (module docstring).
-    ``configuration``: the positions, orientations, velocities and angular velocities it
-    was evaluated at."""
+    gentle start: its whole overlap, unless it is closing (module docstring)."""
     out = evaluation.history.copy()
-    found = evaluation.contacts
-    x, _, v, w = configuration
-    kh.initial_allowance(found.bodies, found.offsets, (found.points, found.normals, found.overlaps),
-                         (x, v, w), out)  # fmt: skip
+    kh.initial_allowance(evaluation.contacts.overlaps, evaluation.terms, out)
     return out

@@ -407,7 +407,7 @@ def _gentle_start(scene, evaluation, configuration, h: float, history):
     forces evaluated again with it (same contacts, no search)."""
     if not math.isfinite(scene.separation_speed):  # overlaps pushed apart at once
         return history, evaluation
-    values = allowances(evaluation, configuration)
+    values = allowances(evaluation)
     if not (values[:, kf.HISTORY_ALLOWANCE] > 0.0).any():
         return history, evaluation
     x, q = configuration[0], configuration[1]

@@ -38,7 +38,8 @@ SLIP = 14  # s (a sliding spring: 1; a sticking one: 0)
 TANGENT = 15  # 15:18 the sliding velocity v_t of B relative to A (a sliding spring: ĝ)
 TANGENT_SPRING = 18  # k_t where the tangential spring sticks, else 0
 DISPLACEMENT = 19  # 19:22 the tangential spring's displacement ξ at the end of the step
-TERMS = 22
+NORMAL_SPEED = 22  # v_n: B's point moving away from A's along the normal (< 0: closing)
+TERMS = 23
 
 # columns of a contact's history (:mod:`engine.dynamics.history`)
 HISTORY_DISPLACEMENT = 0  # 0:3 ξ at the start of the step
@@ -125,6 +126,7 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
                     f_n, damping, k_eff = 2.0 * spring, 0.0, 2.0 * k_eff
             t0, t1, t2 = u0 - v_n * n0, u1 - v_n * n1, u2 - v_n * n2
             terms[c, DAMPING_SLOPE] = damping
+            terms[c, NORMAL_SPEED] = v_n
             terms[c, TANGENT] = t0
             terms[c, TANGENT + 1] = t1
             terms[c, TANGENT + 2] = t2

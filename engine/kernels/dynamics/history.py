@@ -18,6 +18,7 @@ from engine.kernels.dynamics.contact_forces import (
     HISTORY_ALLOWANCE,
     HISTORY_DISPLACEMENT,
     HISTORY_RELEASING,
+    NORMAL_SPEED,
 )
 from engine.kernels.geometry.rotation import quaternion_rotation
 from engine.kernels.jit import JIT
@@ -88,29 +89,13 @@ def carried(terms, start, overlaps, release, midpoint, out):
 
 
 @njit(**JIT)
-def initial_allowance(bodies, offsets, found, state, out):
-    """Set ``out[c, HISTORY_ALLOWANCE]`` of each contact that is not closing to its overlap:
-    its spring starts relaxed and lets go of it at the allowance's release rate. A closing
-    contact (B's material point approaching A's along the normal: a collision under way)
-    gets none: its spring pushes as it would have.
-
-    ``bodies (k, 2)``, ``offsets (k + 1,)`` int64; ``found = (points, normals, overlaps)``
-    of the contacts (``(c, 3)``, ``(c, 3)``, ``(c,)`` float64); ``state = (positions,
-    velocities, angular_velocities)`` of the bodies, each ``(n, 3)`` float64."""
-    points, normals, overlaps = found
-    positions, velocities, spins = state
-    for q in range(bodies.shape[0]):
-        a, b = bodies[q, 0], bodies[q, 1]
-        for c in range(offsets[q], offsets[q + 1]):
-            closing = 0.0  # −v_n: the speed at which B's point approaches A's
-            for i in range(3):
-                j, k = (i + 1) % 3, (i + 2) % 3
-                rb_j, rb_k = points[c, j] - positions[b, j], points[c, k] - positions[b, k]
-                ra_j, ra_k = points[c, j] - positions[a, j], points[c, k] - positions[a, k]
-                u = velocities[b, i] + spins[b, j] * rb_k - spins[b, k] * rb_j
-                u -= velocities[a, i] + spins[a, j] * ra_k - spins[a, k] * ra_j
-                closing -= u * normals[c, i]
-            if closing > 0.0:
-                continue
-            out[c, HISTORY_ALLOWANCE] = overlaps[c]
-            out[c, HISTORY_RELEASING] = 1.0 if overlaps[c] > 0.0 else 0.0
+def initial_allowance(overlaps, terms, out):
+    """Set ``out[c, HISTORY_ALLOWANCE]`` of each contact that is not closing to its overlap
+    ``overlaps (c,)``: its spring starts relaxed and lets go of it at the allowance's release
+    rate. A closing contact (``terms (c, TERMS)``: NORMAL_SPEED < 0, B's point approaching
+    A's: a collision under way) gets none: its spring pushes as it would have."""
+    for c in range(overlaps.shape[0]):
+        if terms[c, NORMAL_SPEED] < 0.0:
+            continue
+        out[c, HISTORY_ALLOWANCE] = overlaps[c]
+        out[c, HISTORY_RELEASING] = 1.0 if overlaps[c] > 0.0 else 0.0

@@ -197,16 +197,26 @@ def moved_contacts(bodies, offsets, found, reach, before, after, out):
     x0, q0 = before
     x1, q1 = after
     r0, r1 = np.empty((3, 3)), np.empty((3, 3))
-    turn_a, turn_b = np.empty((3, 3)), np.empty((3, 3))
+    turns = np.empty((q0.shape[0], 3, 3))  # R R⁰ᵀ of each body in a pair with contacts
+    done = np.zeros(q0.shape[0], np.bool_)
     pa, pb = np.empty(3), np.empty(3)
     for pair in range(bodies.shape[0]):
-        a, b = bodies[pair, 0], bodies[pair, 1]
-        for body, turn in ((a, turn_a), (b, turn_b)):
+        if offsets[pair + 1] == offsets[pair]:
+            continue
+        for body in (bodies[pair, 0], bodies[pair, 1]):
+            if done[body]:
+                continue
             quaternion_rotation(q0[body], r0)
             quaternion_rotation(q1[body], r1)
             for i in range(3):
                 for j in range(3):
-                    turn[i, j] = r1[i, 0] * r0[j, 0] + r1[i, 1] * r0[j, 1] + r1[i, 2] * r0[j, 2]
+                    turns[body, i, j] = (
+                        r1[i, 0] * r0[j, 0] + r1[i, 1] * r0[j, 1] + r1[i, 2] * r0[j, 2]
+                    )
+            done[body] = True
+    for pair in range(bodies.shape[0]):
+        a, b = bodies[pair, 0], bodies[pair, 1]
+        turn_a, turn_b = turns[a], turns[b]
         for c in range(offsets[pair], offsets[pair + 1]):
             for i in range(3):
                 pa[i] = x1[a, i]
