@@ -20,9 +20,12 @@
   oscillation (mm/s) and never sleeps; the law's damping brings it to rest.
 
 Newton corrections first (:mod:`engine.dynamics.newton`): each iteration's next applied
-forces solve the contact forces linearised about the configuration it evaluated; a
-correction that does not halve the residual (a contact-set switch) hands the step to the
-relaxation below.
+forces solve the contact forces linearised about the configuration it evaluated. A
+correction that does not shrink the residual is halved (damped Newton, from the iterate it
+started at) up to ``BACKTRACKS`` times per contact set — friction springs that switch
+between sticking and sliding, contacts that start or stop acting and the clamped dashpot
+make the forces only piecewise smooth, and a full correction can overshoot a kink — then the
+step falls back to the relaxation below.
 
 Frozen contact sets (not in the paper): between searches, iterations evaluate the contacts
 of the last search carried rigidly with the bodies
@@ -97,9 +100,12 @@ SWITCH_AFTER = 8
 NORMAL, FRICTION = 0, 1
 """The two parts of the contact forces a Picard iteration relaxes, each with its weight."""
 _BODIES_PER_PART = 2048  # bodies a worker thread advances at least (~0.3 ms)
-NEWTON_CONTRACTION = 0.5
-"""A Newton correction must shrink the residual by this factor, else the step relaxes."""
-MAX_FREEZES = 3
+NEWTON_CONTRACTION = 1.0
+"""A Newton correction must shrink the residual by this factor (1: at all) …"""
+BACKTRACKS = 8
+"""… else it is halved, at most this many times per contact set; after that the step
+relaxes."""
+MAX_FREEZES = 10
 """Frozen contact sets a step solves on before it iterates on searched forces only."""
 FROZEN_TOLERANCE = 0.1
 """A frozen set's iteration settles at this fraction of ``picard_tolerance`` …"""
@@ -279,6 +285,8 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     recent: list[Wrench] = []  # the last computed totals
     newton: Linearization | None = Linearization(scene, start, dt)
     last_size = math.inf
+    anchor: Wrench | None = None  # the applied forces the last Newton correction started from
+    backtracks = 0  # Newton corrections halved on this contact set
     # frozen contact sets (module docstring): the contacts of the last search, moved rigidly
     freezes = 0 if isinstance(search, _Search) else MAX_FREEZES
     frozen: MovedContacts | None = None
@@ -333,13 +341,23 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                 break
             size = float(np.linalg.norm(rx.flat(mismatch, radius)))
             if searched and freezes < MAX_FREEZES:  # a new frozen set: the residual starts over
-                last_size = math.inf
-            if newton is not None and (changed or size > NEWTON_CONTRACTION * last_size):
+                last_size, backtracks = math.inf, 0
+            growing = size > NEWTON_CONTRACTION * last_size
+            if newton is not None and not changed and growing and backtracks < BACKTRACKS:
+                # damped Newton: half of the last correction, from the iterate it started at
+                backtracks += 1
+                applied = Wrench(
+                    0.5 * (anchor.force + applied.force), 0.5 * (anchor.torque + applied.torque)
+                )
+                _advance(scene, start, applied.force, applied.torque, dt, guess)
+                continue
+            if newton is not None and (changed or growing):
                 # not contracting (a contact-set switch) or the fronts moved: relax instead
                 newton, relaxed = None, [applied, _zero(applied)]
                 beta = rx.first_weights(scene, stiffness, radius, dt)
             last_size = size
             if newton is not None:
+                anchor = applied  # the iterate the correction starts from
                 applied = newton.corrected(evaluation, applied)
             else:
                 if changed:  # a front moved: the secant history no longer describes the map

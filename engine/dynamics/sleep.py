@@ -89,7 +89,8 @@ class Sleep:
         has been at rest — surface speed |v| + |ω|·R below :attr:`speed`, R the bounding
         ``radius (n,) float64`` of its tree — and put to sleep those at rest for
         :attr:`steps` steps; bodies near a moving one (broad-phase candidates) wake or
-        start counting again."""
+        start counting again. A body that falls asleep is at rest: its velocity and angular
+        velocity become zero."""
         free = ~scene.fixed
         speed = np.empty(len(radius))
         kd.surface_speeds(scene.velocities, scene.angular_velocities, radius, speed)
@@ -106,4 +107,7 @@ class Sleep:
             woken = near[self.asleep[near]]
             self.asleep[woken] = False
             self.rest[near] = 0
-        self.asleep |= free & (self.rest >= self.steps)
+        falling = free & ~self.asleep & (self.rest >= self.steps)
+        self.asleep |= falling
+        scene.velocities[falling] = 0.0  # asleep is at rest (frozen() zeroes them anyway)
+        scene.angular_velocities[falling] = 0.0

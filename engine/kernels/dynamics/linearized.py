@@ -97,75 +97,154 @@ def contact_product(bodies, offsets, points, normals, terms, origins, z, w_k, w_
 
 
 @njit(**JIT)
-def block_inverses(bodies, offsets, points, normals, terms, origins, mass, inertia, h, free, out):
-    """``out (n, 6, 6)``: the inverse of each free body's diagonal block of
-    M + h²K + h·C (its mass, its world ``inertia (n, 3, 3)``, and its own contacts' terms),
-    the preconditioner of :func:`newton_correction`; zero for bodies not ``free (n,)``."""
+def system_blocks(contacts, origins, mass, inertia, h, free, diagonal, coupling):
+    """The blocks of M + h²K + h·C (module docstring) over the free bodies: ``diagonal (n,
+    6, 6)`` each free body's own (its mass, its world ``inertia (n, 3, 3)`` and Jᵀ·S·J of
+    its contacts, J = [I | −[r]×], S a contact's slopes; zero for bodies not ``free``),
+    ``coupling (k, 6, 6)`` each body pair's −J_aᵀ·S·J_b summed over its contacts (the
+    rows of A, the columns of B; B's rows of A's columns are its transpose; zero unless
+    both are free). ``contacts = (bodies, offsets, points, normals, terms)``."""
+    bodies, offsets, points, normals, terms = contacts
     n = mass.shape[0]
-    block = np.zeros((n, 6, 6))
+    diagonal[:] = 0.0
+    coupling[:] = 0.0
     slopes = np.empty((3, 3))
-    jac = np.empty((3, 6))
-    r = np.empty(3)
+    turned_a, turned_b = np.empty((3, 3)), np.empty((3, 3))  # S·[r]× of A's and B's lever
+    ra, rb = np.empty(3), np.empty(3)
     for q in range(bodies.shape[0]):
-        for side in range(2):
-            body = bodies[q, side]
-            if not free[body]:
+        a, b = bodies[q, 0], bodies[q, 1]
+        if not (free[a] or free[b]):
+            continue
+        for c in range(offsets[q], offsets[q + 1]):
+            if terms[c, ACTIVE] == 0.0:
                 continue
-            for c in range(offsets[q], offsets[q + 1]):
-                if terms[c, ACTIVE] == 0.0:
-                    continue
-                _slopes(normals, terms, c, h * h, h, slopes)
+            _slopes(normals, terms, c, h * h, h, slopes)
+            for i in range(3):
+                ra[i] = points[c, i] - origins[a, i]
+                rb[i] = points[c, i] - origins[b, i]
+            _turned(slopes, ra, turned_a)
+            _turned(slopes, rb, turned_b)
+            if free[a]:
+                _add_own(diagonal[a], slopes, ra, turned_a)
+            if free[b]:
+                _add_own(diagonal[b], slopes, rb, turned_b)
+            if free[a] and free[b]:
+                # −J_aᵀ·S·J_b = [[−S, S[r_b]×], [(S[r_a]×)ᵀ, [r_a]×·S[r_b]×]]
+                block = coupling[q]
                 for i in range(3):
-                    r[i] = points[c, i] - origins[body, i]
-                # J = [I | −[r]×]: u_i = z_i + (ω × r)_i
-                for i in range(3):
-                    j, k = (i + 1) % 3, (i + 2) % 3
-                    for col in range(6):
-                        jac[i, col] = 0.0
-                    jac[i, i] = 1.0
-                    jac[i, 3 + j] = r[k]
-                    jac[i, 3 + k] = -r[j]
-                for x in range(6):
-                    for y in range(6):
-                        total = 0.0
-                        for i in range(3):
-                            for m in range(3):
-                                total += jac[i, x] * slopes[i, m] * jac[m, y]
-                        block[body, x, y] += total
+                    for j in range(3):
+                        block[i, j] -= slopes[i, j]
+                        block[i, 3 + j] += turned_b[i, j]
+                        block[3 + i, j] += turned_a[j, i]
+                for j in range(3):
+                    t0, t1, t2 = turned_b[0, j], turned_b[1, j], turned_b[2, j]
+                    block[3, 3 + j] += ra[1] * t2 - ra[2] * t1
+                    block[4, 3 + j] += ra[2] * t0 - ra[0] * t2
+                    block[5, 3 + j] += ra[0] * t1 - ra[1] * t0
     for body in range(n):
         if not free[body]:
-            out[body] = 0.0
             continue
         for i in range(3):
-            block[body, i, i] += mass[body]
+            diagonal[body, i, i] += mass[body]
             for j in range(3):
-                block[body, 3 + i, 3 + j] += inertia[body, i, j]
-        out[body] = np.linalg.inv(block[body])
+                diagonal[body, 3 + i, 3 + j] += inertia[body, i, j]
+
+
+@njit(**BORROW, forceinline=True)
+def _turned(slopes, r, out):
+    """``out (3, 3)`` = S·[r]×, [r]× = [[0, −r₂, r₁], [r₂, 0, −r₀], [−r₁, r₀, 0]]."""
+    for i in range(3):
+        out[i, 0] = slopes[i, 1] * r[2] - slopes[i, 2] * r[1]
+        out[i, 1] = slopes[i, 2] * r[0] - slopes[i, 0] * r[2]
+        out[i, 2] = slopes[i, 0] * r[1] - slopes[i, 1] * r[0]
+
+
+@njit(**BORROW, forceinline=True)
+def _add_own(block, slopes, r, turned):
+    """``block (6, 6)`` += Jᵀ·S·J = [[S, −S[r]×], [[r]×S, −[r]×·S[r]×]] ([r]×S = −(S[r]×)ᵀ
+    for a symmetric S) with ``turned`` = S·[r]×."""
+    for i in range(3):
+        for j in range(3):
+            block[i, j] += slopes[i, j]
+            block[i, 3 + j] -= turned[i, j]
+            block[3 + j, i] -= turned[i, j]
+    for j in range(3):
+        t0, t1, t2 = turned[0, j], turned[1, j], turned[2, j]
+        block[3, 3 + j] -= r[1] * t2 - r[2] * t1
+        block[4, 3 + j] -= r[2] * t0 - r[0] * t2
+        block[5, 3 + j] -= r[0] * t1 - r[1] * t0
 
 
 @njit(**JIT)
-def _mass_product(mass, inertia, free, z, out):
-    """``out (n, 6)`` = M·z for the free bodies, 0 elsewhere."""
+def block_factors(diagonal, free, out):
+    """``out (n, 6, 6)``: the lower Cholesky factor L (L·Lᵀ) of each free body's
+    ``diagonal`` block (:func:`system_blocks`), the preconditioner of
+    :func:`newton_correction`; zero for bodies not ``free (n,)``. The blocks are symmetric
+    positive definite (a positive mass and inertia plus positive semi-definite slopes)."""
+    for body in range(diagonal.shape[0]):
+        out[body] = 0.0
+        if free[body]:
+            _cholesky(diagonal[body], out[body])
+
+
+@njit(**JIT)
+def _block_product(diagonal, coupling, bodies, active, z, out):
+    """``out (n, 6)`` = (M + h²K + h·C)·z from :func:`system_blocks`' blocks, over the
+    body pairs ``active`` (those with a coupling block)."""
     for b in range(z.shape[0]):
+        for i in range(6):
+            total = 0.0
+            for j in range(6):
+                total += diagonal[b, i, j] * z[b, j]
+            out[b, i] = total
+    for t in range(active.shape[0]):
+        q = active[t]
+        a, b = bodies[q, 0], bodies[q, 1]
+        block = coupling[q]
+        for i in range(6):
+            to_a, to_b = 0.0, 0.0
+            for j in range(6):
+                to_a += block[i, j] * z[b, j]
+                to_b += block[j, i] * z[a, j]
+            out[a, i] += to_a
+            out[b, i] += to_b
+
+
+@njit(**BORROW)
+def _cholesky(a, out):
+    """``out (6, 6)``: the lower Cholesky factor of the symmetric positive definite ``a``
+    (its lower triangle is read); the upper triangle of ``out`` is left as it was."""
+    for j in range(6):
+        diagonal = a[j, j]
+        for k in range(j):
+            diagonal -= out[j, k] * out[j, k]
+        out[j, j] = np.sqrt(diagonal)
+        for i in range(j + 1, 6):
+            total = a[i, j]
+            for k in range(j):
+                total -= out[i, k] * out[j, k]
+            out[i, j] = total / out[j, j]
+
+
+@njit(**JIT)
+def _preconditioned(factors, free, r, out):
+    """``out (n, 6)``: each free body's block solved for its row of ``r`` by the Cholesky
+    ``factors (n, 6, 6)`` (L·y = r, then Lᵀ·x = y); 0 elsewhere."""
+    for b in range(r.shape[0]):
         if not free[b]:
             out[b, :] = 0.0
             continue
-        for i in range(3):
-            out[b, i] = mass[b] * z[b, i]
-            out[b, 3 + i] = (
-                inertia[b, i, 0] * z[b, 3] + inertia[b, i, 1] * z[b, 4] + inertia[b, i, 2] * z[b, 5]
-            )
-
-
-@njit(**JIT)
-def _preconditioned(inverses, free, r, out):
-    for b in range(r.shape[0]):
+        low = factors[b]
         for i in range(6):
-            total = 0.0
-            if free[b]:
-                for j in range(6):
-                    total += inverses[b, i, j] * r[b, j]
-            out[b, i] = total
+            total = r[b, i]
+            for k in range(i):
+                total -= low[i, k] * out[b, k]
+            out[b, i] = total / low[i, i]
+        for i in range(5, -1, -1):
+            total = out[b, i]
+            for k in range(i + 1, 6):
+                total -= low[k, i] * out[b, k]
+            out[b, i] = total / low[i, i]
 
 
 @njit(**JIT)
@@ -187,26 +266,33 @@ def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance,
     evaluation; ``mass (n,)``, world ``inertia (n, 3, 3)``. The matrix is symmetric
     positive definite: every contact's slopes are (k_n, c_n ≥ 0, the friction's Jacobian
     is positive semi-definite)."""
-    bodies, offsets, points, normals, terms = contacts
+    bodies, offsets = contacts[0], contacts[1]
     n = mass.shape[0]
-    inverses = np.empty((n, 6, 6))
-    block_inverses(bodies, offsets, points, normals, terms, origins, mass, inertia, h, free,
-                   inverses)  # fmt: skip
+    diagonal, coupling = np.empty((n, 6, 6)), np.empty((bodies.shape[0], 6, 6))
+    system_blocks(contacts, origins, mass, inertia, h, free, diagonal, coupling)
+    factors = np.empty((n, 6, 6))
+    block_factors(diagonal, free, factors)
+    coupled = 0  # the body pairs with a coupling block: both free, a contact acting
+    active = np.empty(bodies.shape[0], np.int64)
+    for q in range(bodies.shape[0]):
+        if free[bodies[q, 0]] and free[bodies[q, 1]] and offsets[q + 1] > offsets[q]:
+            active[coupled] = q
+            coupled += 1
+    active = active[:coupled]
     z[:] = 0.0
     r = rhs.copy()
     for b in range(n):
         if not free[b]:
             r[b, :] = 0.0
     p, s, product = np.empty((n, 6)), np.empty((n, 6)), np.empty((n, 6))
-    _preconditioned(inverses, free, r, s)
+    _preconditioned(factors, free, r, s)
     p[:] = s
     rs = _dot(r, s, free)
     start = np.sqrt(_dot(r, r, free))
     if start == 0.0:
         return 0
     for iteration in range(most):
-        _mass_product(mass, inertia, free, p, product)
-        contact_product(bodies, offsets, points, normals, terms, origins, p, h * h, h, product)
+        _block_product(diagonal, coupling, bodies, active, p, product)
         curvature = _dot(p, product, free)
         if curvature <= 0.0:
             return iteration
@@ -221,7 +307,7 @@ def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance,
                     r[b, :] = 0.0
         if np.sqrt(_dot(r, r, free)) <= tolerance * start:
             return iteration + 1
-        _preconditioned(inverses, free, r, s)
+        _preconditioned(factors, free, r, s)
         rs_new = _dot(r, s, free)
         beta = rs_new / rs
         rs = rs_new

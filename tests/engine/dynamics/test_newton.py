@@ -67,6 +67,51 @@ def test_the_correction_solves_the_linearised_system():
     assert not z[~lin.free].any()
 
 
+def test_the_system_blocks_are_the_linearised_matrix_and_factor_it():
+    """``system_blocks``' diagonal and coupling blocks assemble M + h²K + hC as the contact
+    products give it column by column, and ``block_factors``' L·Lᵀ is each free body's
+    diagonal block."""
+    scene = stack()
+    state = (scene.positions, scene.orientations, scene.velocities, scene.angular_velocities)
+    evaluation = evaluate(scene, state, scene.positions, Flat(scene))
+    h, n = 1e-3, len(scene)
+    lin = Linearization(scene, state, h)
+    found = evaluation.contacts
+    contacts = (found.bodies, found.offsets, found.points, found.normals, evaluation.terms)
+    diagonal, coupling = np.full((n, 6, 6), np.nan), np.full((len(found.bodies), 6, 6), np.nan)
+    kl.system_blocks(contacts, lin.origins, lin.mass, lin.inertia, h, lin.free, diagonal, coupling)
+    assembled = np.zeros((6 * n, 6 * n))
+    for body in range(n):
+        assembled[6 * body : 6 * body + 6, 6 * body : 6 * body + 6] = diagonal[body]
+    for (a, b), block in zip(found.bodies, coupling, strict=True):
+        assembled[6 * a : 6 * a + 6, 6 * b : 6 * b + 6] += block
+        assembled[6 * b : 6 * b + 6, 6 * a : 6 * a + 6] += block.T
+    expected = np.zeros((6 * n, 6 * n))
+    for column in range(6 * n):
+        unit = np.zeros((n, 6))
+        unit.flat[column] = 1.0
+        out = np.zeros((n, 6))
+        kl.contact_product(*contacts, lin.origins, unit, h * h, h, out)
+        out[:, :3] += lin.mass[:, None] * unit[:, :3]
+        out[:, 3:] += np.einsum("bij,bj->bi", lin.inertia, unit[:, 3:])
+        expected[:, column] = out.ravel()
+    free = np.repeat(lin.free, 6)
+    assert np.abs(coupling[(found.offsets[1:] > found.offsets[:-1])]).max() > 0  # box on box
+    np.testing.assert_allclose(
+        assembled[np.ix_(free, free)], expected[np.ix_(free, free)],
+        rtol=1e-12, atol=1e-12 * np.abs(expected).max(),
+    )  # fmt: skip
+    assert not assembled[~free].any() and not assembled[:, ~free].any()
+    factors = np.full((n, 6, 6), np.nan)
+    kl.block_factors(diagonal, lin.free, factors)
+    assert not factors[~lin.free].any()
+    for body in np.flatnonzero(lin.free):
+        low = np.tril(factors[body])
+        np.testing.assert_allclose(
+            low @ low.T, diagonal[body], rtol=1e-12, atol=1e-12 * np.abs(diagonal[body]).max()
+        )
+
+
 def test_a_correction_is_a_sum_of_equal_and_opposite_contact_forces():
     scene = stack()
     scene.gravity[:] = 0.0
