@@ -480,6 +480,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--dt-midpoint", type=float, default=5e-4)
     p.add_argument("--damping", type=float, default=0.3, help="normal damping ratio ζ")
     p.add_argument("--friction", type=float, default=0.5, help="Coulomb μ of the piles")
+    p.add_argument(
+        "--stiffness",
+        type=float,
+        default=1000.0,
+        help="the piles' spring constant K_s (PaperSpring, default the paper's 1000)",
+    )
     p.add_argument("--large", type=int, help="bodies of the large pile (512; quick 64)")
     p.add_argument("--skip-large", action="store_true")
     p.add_argument(
@@ -514,7 +520,7 @@ def main(argv=None) -> None:
     dts = {"explicit": args.dt_explicit, "implicit-midpoint": args.dt_midpoint}
     schemes = {s: dts.get(s, args.dt_implicit) for s in args.schemes}
     large_schemes = {s: dts.get(s, args.dt_implicit) for s in args.large_schemes}
-    model = PaperSpring(friction=args.friction, damping=args.damping)
+    model = PaperSpring(friction=args.friction, damping=args.damping, stiffness=args.stiffness)
     results: dict = {
         "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
         "machine": machine_info(),
