@@ -170,6 +170,7 @@ class TreeBank:
             leaf_epsilon=np.array([t.leaf_epsilon for t in trees]),
             bounding_radius=np.array([t.bounding_radius for t in trees]),
             extent=np.array([t.views.geometry.extent for t in trees]),
+            radius=np.array([t.views.geometry.radius for t in trees]),
         )
 
     def __len__(self) -> int:

@@ -115,6 +115,12 @@ class TreeGeometry:
         return float(np.abs(self._triangles).max())
 
     @cached_property
+    def radius(self) -> float:
+        """Largest distance of a node's corner from the body-frame origin (float): a turn
+        R₀ → R moves no point of the body by more than ‖R − R₀‖₂ times this."""
+        return float(np.sqrt((self._triangles * self._triangles).sum(axis=-1)).max())
+
+    @cached_property
     def representatives(self) -> np.ndarray:
         """(N,) int64: for each node, the covered leaf whose centroid is nearest the node
         triangle's centroid (a leaf represents itself; ties go to the lower index)."""

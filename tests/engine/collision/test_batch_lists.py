@@ -145,3 +145,39 @@ def test_pairs_at_their_reach_get_the_traversals_decision(precision, kernel):
         for name in ("pair_offsets", "pairs", "contact_offsets", "points", "normals"):
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), name)
         np.testing.assert_array_equal(got.overlaps, want.overlaps)
+
+
+def test_the_motion_bound_holds_and_is_tight():
+    """``motion_bound`` bounds how far any point within the radius moves between two poses,
+    and is the exact largest motion (2·sin(θ/2)·radius + |Δs|, θ the turn between them)
+    to rounding: a list lasts as long as the bodies' motion allows."""
+    from engine.kernels.collision.batch import motion_bound
+    from engine.kernels.dynamics.motion import rotation_matrices
+
+    rng = np.random.default_rng(5)
+    for case in range(300):
+        q0 = rng.normal(size=4)
+        turn = 10.0 ** rng.uniform(-9, 0) if case % 3 else 0.0
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        dq = np.concatenate([[np.cos(turn / 2)], np.sin(turn / 2) * axis])
+        w0, v0, w1, v1 = q0[0], q0[1:], dq[0], dq[1:]  # q1 = dq ⊗ q0
+        q1 = np.concatenate([[w1 * w0 - v1 @ v0], w1 * v0 + w0 * v1 + np.cross(v1, v0)])
+        rotations = np.empty((2, 3, 3))
+        rotation_matrices(np.array([q0, q1]) / np.linalg.norm(q0), rotations)
+        s0, s1 = rng.normal(size=3), rng.normal(size=3) * (case % 2)
+        radius = rng.uniform(0.01, 10.0)
+        points = rng.normal(size=(2000, 3))
+        points *= (
+            radius
+            * rng.uniform(0, 1, size=(2000, 1)) ** 0.2
+            / np.linalg.norm(points, axis=1, keepdims=True)
+        )
+        edge = np.cross(axis, rng.normal(size=3))  # the farthest a turn moves: ⊥ the axis
+        points[0] = radius * edge / np.linalg.norm(edge)
+        moved = (points @ rotations[1].T + s1) - (points @ rotations[0].T + s0)
+        largest = np.linalg.norm(moved, axis=1).max()
+        bound = motion_bound(rotations[0], s0, rotations[1], s1, radius)
+        assert largest <= bound
+        exact = 2 * np.sin(turn / 2) * radius + np.linalg.norm(s1 - s0)
+        assert bound <= exact + 1e-13 * radius
