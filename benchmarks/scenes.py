@@ -256,13 +256,13 @@ def run_mujoco_pile(layout, meshes, scene, dt: float, seconds: float, friction: 
 
 
 def pile_section(
-    count: int, schemes: dict, seconds: float, model: PaperSpring, substeps: bool
+    count: int, schemes: dict, seconds: float, model: PaperSpring, substeps: bool, seed: int = 0
 ) -> dict:
     """mrdem with each ``schemes`` entry (scheme → dt) and MuJoCo at the default scheme's
     dt and at its own 2 ms, on a pile of ``count`` bodies; the ratios of wall time per
     simulated second (mrdem over each MuJoCo run)."""
     meshes = load_meshes()
-    layout = apart(pile_layout(count), meshes)
+    layout = apart(pile_layout(count, seed), meshes)
     rows = []
     for scheme, dt in schemes.items():
         rows.append(run_mrdem_pile(layout, meshes, model, scheme, dt, seconds, substeps))
@@ -481,6 +481,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--damping", type=float, default=0.3, help="normal damping ratio ζ")
     p.add_argument("--friction", type=float, default=0.5, help="Coulomb μ of the piles")
     p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the piles' orientations (the pile is chaotic: compare several)",
+    )
+    p.add_argument(
         "--stiffness",
         type=float,
         default=1000.0,
@@ -528,12 +534,12 @@ def main(argv=None) -> None:
     }
 
     print("pile:", flush=True)
-    results["pile"] = pile_section(48, schemes, args.seconds, model, args.substeps)
+    results["pile"] = pile_section(48, schemes, args.seconds, model, args.substeps, args.seed)
     print_pile("pile", results["pile"])
     if not args.skip_large:
         print(f"\nlarge pile ({args.large} bodies):", flush=True)
         results["large_pile"] = pile_section(
-            args.large, large_schemes, args.seconds, model, args.substeps
+            args.large, large_schemes, args.seconds, model, args.substeps, args.seed
         )
         print_pile("large pile", results["large_pile"])
 

@@ -81,7 +81,6 @@ from engine.dynamics.evaluation import (
     MovedContacts,
     WarmStart,
     Wrench,
-    cross,
     evaluate,
     evaluation_key,
     reused,
@@ -465,44 +464,12 @@ def _extrapolate(scene, start, dt: float) -> None:
     (of the midpoint) is no longer the configuration's: ``scene.warm_start`` keeps it with
     the midpoint's state, which the next step does not reuse as its start's forces (the
     states differ) but carries on as a frozen contact set (:func:`_carried_contacts`)."""
-    x0, q0, v0, w0 = start
-    free = np.flatnonzero(~scene.fixed)
-    if not len(free):
-        return
-    x1, q1, v1, w1 = (a[free] for a in _state(scene))
-    rot = np.empty((len(free), 3, 3))
-    inertia = scene.inertia[free]
-    kd.rotation_matrices(q0[free], rot)
-    momentum0 = np.einsum("bij,bjk,bkl,bl->bi", rot, inertia, rot.transpose(0, 2, 1), w0[free])
-    kd.rotation_matrices(q1, rot)
-    momentum1 = np.einsum("bij,bjk,bkl,bl->bi", rot, inertia, rot.transpose(0, 2, 1), w1)
-    q2 = _quaternion_product(_quaternion_product(q1, q0[free] * [1, -1, -1, -1]), q1)
-    q2 /= np.linalg.norm(q2, axis=1)[:, None]
-    kd.rotation_matrices(q2, rot)
-    world = np.einsum("bij,bjk,bkl->bil", rot, inertia, rot.transpose(0, 2, 1))
-    contact = (
-        scene.masses[free, None] * (v1 - v0[free]) * (2.0 / dt) - body_terms(scene).force[free]
-    )
-    momentum2 = 2.0 * momentum1 - momentum0 + dt * cross(x0[free] - x1, contact)
-    spin = np.linalg.solve(world, momentum2[..., None])[..., 0]
-    x, q, v, w = (a.copy() for a in _state(scene))
-    x[free], q[free], v[free], w[free] = 2.0 * x1 - x0[free], q2, 2.0 * v1 - v0[free], spin
-    _restore(scene, (x, q, v, w))
-
-
-def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise Hamilton product of ``(n, 4)`` quaternions (w, x, y, z)."""
-    w1, x1, y1, z1 = a.T
-    w2, x2, y2, z2 = b.T
-    return np.stack(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ],
-        axis=1,
-    )
+    mid = _state(scene)
+    out = tuple(np.empty_like(a) for a in mid)
+    bodies = body_terms(scene)
+    kd.extrapolated(start, mid, scene.inertia, scene.inverse_inertia, scene.masses,
+                    bodies.force, ~scene.fixed, float(dt), out)  # fmt: skip
+    _restore(scene, out)
 
 
 def _advance(scene, start, force, torque, dt: float, out) -> None:

@@ -126,6 +126,67 @@ def advance(start, force, torque, inverse_mass, inertia_body, inverse_inertia, d
 
 
 @njit(**JIT)
+def extrapolated(start, mid, inertia_body, inverse_inertia, mass, force, free, dt, out):
+    """The implicit midpoint rule's end of step (``engine.dynamics.picard._extrapolate``):
+    from ``start`` through ``mid`` (each ``(positions, orientations, velocities,
+    angular_velocities)``) on to ``out`` (the same four arrays; may not alias either).
+    A ``free (n,)`` body's position and velocity become 2·mid − start, its orientation
+    turns on by the rotation from start to mid (q₂ = q₁ ⊗ q̄₀ ⊗ q₁, renormalised), and its
+    world angular momentum becomes 2·L₁ − L₀ + dt·(x₀ − x₁) × F_c, F_c = m·(v₁ − v₀)·2/dt −
+    ``force (n, 3)`` the contact force of the half step (``force``: gravity and external
+    forces), whence ω₂ = R₂ I⁻¹ R₂ᵀ L₂. Other bodies keep ``mid``. ``mass (n,)``,
+    ``inertia_body``, ``inverse_inertia (n, 3, 3)`` (body frame)."""
+    x0, q0, v0, w0 = start
+    x1, q1, v1, w1 = mid
+    x2, q2, v2, w2 = out
+    rot = np.empty((3, 3))
+    world = np.empty((3, 3))
+    before, now, spin = np.empty(3), np.empty(3), np.empty(3)
+    contact, lever, half = np.empty(3), np.empty(3), np.empty(4)
+    for b in range(x0.shape[0]):
+        if not free[b]:
+            for c in range(3):
+                x2[b, c], v2[b, c], w2[b, c] = x1[b, c], v1[b, c], w1[b, c]
+            for c in range(4):
+                q2[b, c] = q1[b, c]
+            continue
+        quaternion_rotation(q0[b], rot)
+        _conjugate(rot, inertia_body[b], world)
+        _times(world, w0[b], before)
+        quaternion_rotation(q1[b], rot)
+        _conjugate(rot, inertia_body[b], world)
+        _times(world, w1[b], now)
+        # q₁ ⊗ q̄₀, then ⊗ q₁
+        a0, a1, a2, a3 = q1[b, 0], q1[b, 1], q1[b, 2], q1[b, 3]
+        c0, c1, c2, c3 = q0[b, 0], -q0[b, 1], -q0[b, 2], -q0[b, 3]
+        half[0] = a0 * c0 - a1 * c1 - a2 * c2 - a3 * c3
+        half[1] = a0 * c1 + a1 * c0 + a2 * c3 - a3 * c2
+        half[2] = a0 * c2 - a1 * c3 + a2 * c0 + a3 * c1
+        half[3] = a0 * c3 + a1 * c2 - a2 * c1 + a3 * c0
+        h0, h1, h2, h3 = half[0], half[1], half[2], half[3]
+        n0 = h0 * a0 - h1 * a1 - h2 * a2 - h3 * a3
+        n1 = h0 * a1 + h1 * a0 + h2 * a3 - h3 * a2
+        n2 = h0 * a2 - h1 * a3 + h2 * a0 + h3 * a1
+        n3 = h0 * a3 + h1 * a2 - h2 * a1 + h3 * a0
+        norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
+        q2[b, 0], q2[b, 1], q2[b, 2], q2[b, 3] = n0 / norm, n1 / norm, n2 / norm, n3 / norm
+        for c in range(3):
+            contact[c] = mass[b] * (v1[b, c] - v0[b, c]) * (2.0 / dt) - force[b, c]
+            lever[c] = x0[b, c] - x1[b, c]
+            x2[b, c] = 2.0 * x1[b, c] - x0[b, c]
+            v2[b, c] = 2.0 * v1[b, c] - v0[b, c]
+        for c in range(3):
+            j, k = (c + 1) % 3, (c + 2) % 3
+            moment = lever[j] * contact[k] - lever[k] * contact[j]
+            spin[c] = 2.0 * now[c] - before[c] + dt * moment
+        quaternion_rotation(q2[b], rot)
+        _conjugate(rot, inverse_inertia[b], world)
+        _times(world, spin, now)
+        for c in range(3):
+            w2[b, c] = now[c]
+
+
+@njit(**JIT)
 def _conjugate(rot, matrix, out):
     """``out = R · M · Rᵀ`` (a body-frame tensor in the world frame)."""
     for i in range(3):

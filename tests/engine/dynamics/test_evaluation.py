@@ -1,5 +1,5 @@
 """The forces of one configuration and their reuse (engine/dynamics/evaluation.py): Wrench
-arithmetic and ``cross`` against numpy; ``evaluate`` of a ball on a plane against the
+arithmetic against numpy; ``evaluate`` of a ball on a plane against the
 contact law summed here over the contacts ``Scene.contacts`` finds (normal and friction
 apart, gravity and the external force in the normal part, fixed rows zero, surrogate
 contacts normal only, torques about the given origins); ``evaluation_key`` and ``reused``:
@@ -24,7 +24,6 @@ from engine.dynamics.evaluation import (
     WarmStart,
     Wrench,
     contact_forces,
-    cross,
     evaluate,
     evaluation_key,
     reused,
@@ -153,7 +152,7 @@ def assert_wrench(wrench: Wrench, expected: np.ndarray, scale: float) -> None:
     np.testing.assert_allclose(wrench.torque, expected[:, 1], rtol=1e-12, atol=1e-13 * scale)
 
 
-# ------------------------------------------------------------------ Wrench and cross
+# ------------------------------------------------------------------ Wrench
 def test_wrench_plus_and_minus_are_row_wise_and_keep_the_order():
     rng = np.random.default_rng(1)
     a, b, c, d = (rng.normal(size=(5, 3)) for _ in range(4))
@@ -168,16 +167,6 @@ def test_wrench_plus_and_minus_are_row_wise_and_keep_the_order():
     assert total.force is not a and total.torque is not b  # new arrays, operands untouched
 
 
-def test_cross_is_numpys_row_wise_cross_product():
-    rng = np.random.default_rng(2)
-    a, b = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
-    np.testing.assert_allclose(cross(a, b), np.cross(a, b), rtol=1e-15, atol=1e-15)
-    np.testing.assert_allclose(cross(a, b[:1]), np.cross(a, b[:1]), rtol=1e-15, atol=1e-15)
-    np.testing.assert_array_equal(cross(a, a), 0.0)
-    assert cross(a[:0], b[:0]).shape == (0, 3)
-
-
-# ------------------------------------------------------------------ evaluate
 def test_a_ball_at_rest_on_a_plane_gets_the_laws_normal_forces_and_no_friction():
     scene = ball_on_plane()
     state = configuration(scene)
