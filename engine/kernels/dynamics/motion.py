@@ -142,7 +142,7 @@ def extrapolated(start, mid, inertia_body, inverse_inertia, mass, force, free, d
     rot = np.empty((3, 3))
     world = np.empty((3, 3))
     before, now, spin = np.empty(3), np.empty(3), np.empty(3)
-    contact, lever, half = np.empty(3), np.empty(3), np.empty(4)
+    contact, lever = np.empty(3), np.empty(3)
     for b in range(x0.shape[0]):
         if not free[b]:
             for c in range(3):
@@ -158,18 +158,8 @@ def extrapolated(start, mid, inertia_body, inverse_inertia, mass, force, free, d
         _times(world, w1[b], now)
         # q₁ ⊗ q̄₀, then ⊗ q₁
         a0, a1, a2, a3 = q1[b, 0], q1[b, 1], q1[b, 2], q1[b, 3]
-        c0, c1, c2, c3 = q0[b, 0], -q0[b, 1], -q0[b, 2], -q0[b, 3]
-        half[0] = a0 * c0 - a1 * c1 - a2 * c2 - a3 * c3
-        half[1] = a0 * c1 + a1 * c0 + a2 * c3 - a3 * c2
-        half[2] = a0 * c2 - a1 * c3 + a2 * c0 + a3 * c1
-        half[3] = a0 * c3 + a1 * c2 - a2 * c1 + a3 * c0
-        h0, h1, h2, h3 = half[0], half[1], half[2], half[3]
-        n0 = h0 * a0 - h1 * a1 - h2 * a2 - h3 * a3
-        n1 = h0 * a1 + h1 * a0 + h2 * a3 - h3 * a2
-        n2 = h0 * a2 - h1 * a3 + h2 * a0 + h3 * a1
-        n3 = h0 * a3 + h1 * a2 - h2 * a1 + h3 * a0
-        norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
-        q2[b, 0], q2[b, 1], q2[b, 2], q2[b, 3] = n0 / norm, n1 / norm, n2 / norm, n3 / norm
+        h0, h1, h2, h3 = _product(a0, a1, a2, a3, q0[b, 0], -q0[b, 1], -q0[b, 2], -q0[b, 3])
+        _normalised(_product(h0, h1, h2, h3, a0, a1, a2, a3), q2[b])
         for c in range(3):
             contact[c] = mass[b] * (v1[b, c] - v0[b, c]) * (2.0 / dt) - force[b, c]
             lever[c] = x0[b, c] - x1[b, c]
@@ -214,13 +204,25 @@ def _turn(q, omega, dt, out):
         rw, rx, ry, rz = np.cos(0.5 * angle), omega[0] * s, omega[1] * s, omega[2] * s
     else:
         rw, rx, ry, rz = 1.0, 0.0, 0.0, 0.0
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    nw = rw * w - rx * x - ry * y - rz * z
-    nx = rw * x + rx * w + ry * z - rz * y
-    ny = rw * y - rx * z + ry * w + rz * x
-    nz = rw * z + rx * y - ry * x + rz * w
-    norm = np.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    out[0], out[1], out[2], out[3] = nw / norm, nx / norm, ny / norm, nz / norm
+    _normalised(_product(rw, rx, ry, rz, q[0], q[1], q[2], q[3]), out)
+
+
+@njit(**BORROW, forceinline=True)
+def _product(a0, a1, a2, a3, b0, b1, b2, b3):
+    """The Hamilton product a ⊗ b of two quaternions (w, x, y, z), by components."""
+    return (
+        a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+        a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+        a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+        a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0,
+    )
+
+
+@njit(**BORROW, forceinline=True)
+def _normalised(q, out):
+    """``out (4,)`` = the quaternion ``q`` (a 4-tuple) over its norm."""
+    norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    out[0], out[1], out[2], out[3] = q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
 
 
 @njit(**JIT)
