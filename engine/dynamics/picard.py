@@ -22,7 +22,8 @@
 Newton corrections first (:mod:`engine.dynamics.newton`): each iteration's next applied
 forces solve the contact forces linearised about the configuration it evaluated. A
 correction that does not shrink the residual is halved (damped Newton, from the iterate it
-started at) up to ``BACKTRACKS`` times per contact set — friction springs that switch
+started at) up to ``BACKTRACKS`` times per contact set (each frozen set, and the searched
+iterations after the last one) — friction springs that switch
 between sticking and sliding, contacts that start or stop acting and the clamped dashpot
 make the forces only piecewise smooth, and a full correction can overshoot a kink — then the
 step falls back to the relaxation below.
@@ -102,8 +103,9 @@ _BODIES_PER_PART = 2048  # bodies a worker thread advances at least (~0.3 ms)
 NEWTON_CONTRACTION = 1.0
 """A Newton correction must shrink the residual by this factor (1: at all) …"""
 BACKTRACKS = 8
-"""… else it is halved, at most this many times per contact set; after that the step
-relaxes."""
+"""… else it is halved, at most this many times per contact set (each frozen set, and the
+searched iterations after the last one); after that the step relaxes from the last
+iterate."""
 MAX_FREEZES = 10
 """Frozen contact sets a step solves on before it iterates on searched forces only."""
 FROZEN_TOLERANCE = 0.1
@@ -290,6 +292,7 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     freezes = 0 if isinstance(search, _Search) else MAX_FREEZES
     frozen: MovedContacts | None = None
     frozen_at = 0  # the iteration that first evaluated the current frozen set
+    searched = True
     while iterations < scene.max_picard_iterations:
         iterations += 1
         warm = reused(scene, key, start) if iterations == 1 else None
@@ -314,6 +317,7 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
         found = evaluation.contacts.counters
         counters.append(found if warm is None and frozen is None else _no_search(found))
         total = evaluation.normal.plus(evaluation.friction)
+        was_frozen = not searched  # the last iteration evaluated a frozen set
         searched = frozen is None  # the forces of this configuration, not of a frozen set
         if applied is None:  # the step's start: predict its end (linearly implicit Euler)
             applied = newton.predicted(evaluation)
@@ -339,7 +343,9 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             if converged:
                 break
             size = float(np.linalg.norm(rx.flat(mismatch, radius)))
-            if searched and freezes < MAX_FREEZES:  # a new frozen set: the residual starts over
+            if searched and (freezes < MAX_FREEZES or was_frozen):
+                # a new contact set (a new frozen set, or the searched iterations after the
+                # last one): the residual starts over
                 last_size, backtracks = math.inf, 0
             growing = size > NEWTON_CONTRACTION * last_size
             if newton is not None and not changed and growing and backtracks < BACKTRACKS:

@@ -473,7 +473,10 @@ def motion_bound(rotation_0, shift_0, rotation, shift, radius_b):
     ‖R − R₀‖₂·radius + |s − s₀|. For two rotations R − R₀ = (Q − I)·R₀, Q = R·R₀ᵀ a turn by
     θ, whose singular values are 2·sin(θ/2) twice and 0: the spectral norm is the
     Frobenius norm over √2, taken entry by entry (small turns lose no accuracy), plus
-    :data:`ORTHOGONALITY` for the matrices' rounding. (The bound was ‖R − R₀‖_F·√3·extent,
+    :data:`ORTHOGONALITY` for the matrices' rounding: R₀ and R must be rotations of unit
+    quaternions to rounding (every path to the batch renormalises them:
+    ``check_quaternions``, :func:`unit_orientations`; a quaternion of norm 1 + 1e-8 would
+    need more). (The bound was ‖R − R₀‖_F·√3·extent,
     up to 2.4 times larger: lists of turning bodies were renewed that much sooner.)"""
     frobenius = 0.0
     for i in range(3):
