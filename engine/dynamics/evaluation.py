@@ -31,6 +31,7 @@ __all__ = [
     "evaluate",
     "evaluation_key",
     "reused",
+    "unsearched",
 ]
 
 _PAIRS_PER_PART = 8192  # a part of contact_forces' pairs: ~0.1 ms of terms
@@ -111,9 +112,7 @@ class MovedContacts:
         self.before = (positions.copy(), orientations.copy())
         epsilon, bodies = scene.epsilon, contacts.bodies
         self.reach = np.ascontiguousarray(epsilon[bodies[:, 0]] + epsilon[bodies[:, 1]])
-        self.counters = {
-            k: (v if k == "triangle_pairs" else 0) for k, v in contacts.counters.items()
-        }
+        self.counters = unsearched(contacts.counters)
 
     def __call__(self, positions, orientations):
         found = self.contacts
@@ -128,6 +127,12 @@ class MovedContacts:
                               (positions, orientations), out)  # fmt: skip
         moved = Contacts(found.bodies, found.offsets, *out, self.counters)
         return moved, None, False
+
+
+def unsearched(counters: dict) -> dict:
+    """The search counters of an evaluation that did not search: all zero but the
+    contacts it evaluated (``triangle_pairs``)."""
+    return {k: (v if k == "triangle_pairs" else 0) for k, v in counters.items()}
 
 
 def evaluate(

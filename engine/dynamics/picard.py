@@ -85,6 +85,7 @@ from engine.dynamics.evaluation import (
     evaluate,
     evaluation_key,
     reused,
+    unsearched,
 )
 from engine.dynamics.history import ContactHistory, allowances, carried, govern
 from engine.dynamics.newton import Linearization
@@ -315,7 +316,7 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
         forceless = forceless and not stiffness.any()
         computed = (evaluation.normal, evaluation.friction)  # indexed by NORMAL, FRICTION
         found = evaluation.contacts.counters
-        counters.append(found if warm is None and frozen is None else _no_search(found))
+        counters.append(found if warm is None and frozen is None else unsearched(found))
         total = evaluation.normal.plus(evaluation.friction)
         was_frozen = not searched  # the last iteration evaluated a frozen set
         searched = frozen is None  # the forces of this configuration, not of a frozen set
@@ -455,11 +456,6 @@ def _commit_history(scene, evaluation, configuration, dt: float, midpoint: bool,
     scene.contact_history = ContactHistory.of(evaluation.contacts, x, q, values, start)
 
 
-def _no_search(counters: dict) -> dict:
-    """The counters of an evaluation that did not search (all zero but the contacts)."""
-    return {k: (v if k == "triangle_pairs" else 0) for k, v in counters.items()}
-
-
 def _extrapolate(scene, start, dt: float) -> None:
     """From the midpoint the scene is at, on through it to the end of the step: free bodies'
     positions, velocities and world angular momenta become 2·mid − start, orientations turn
@@ -470,12 +466,11 @@ def _extrapolate(scene, start, dt: float) -> None:
     (of the midpoint) is no longer the configuration's: ``scene.warm_start`` keeps it with
     the midpoint's state, which the next step does not reuse as its start's forces (the
     states differ) but carries on as a frozen contact set (:func:`_carried_contacts`)."""
-    mid = _state(scene)
+    mid = (scene.positions, scene.orientations, scene.velocities, scene.angular_velocities)
     out = tuple(np.empty_like(a) for a in mid)
-    bodies = body_terms(scene)
     kd.extrapolated(start, mid, scene.inertia, scene.inverse_inertia, scene.masses,
-                    bodies.force, ~scene.fixed, float(dt), out)  # fmt: skip
-    _restore(scene, out)
+                    body_terms(scene).force, ~scene.fixed, float(dt), out)  # fmt: skip
+    scene.positions, scene.orientations, scene.velocities, scene.angular_velocities = out
 
 
 def _advance(scene, start, force, torque, dt: float, out) -> None:
