@@ -113,17 +113,18 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
             u1 -= velocities[a, 1] + wa[2] * ra0 - wa[0] * ra2
             u2 -= velocities[a, 2] + wa[0] * ra1 - wa[1] * ra0
             v_n = u0 * n0 + u1 * n1 + u2 * n2
-            damping = 0.0
+            damping, slope = 0.0, k_eff
             # a contact letting go of an allowance is at least critically damped
             ratio = zeta if history[c, HISTORY_ALLOWANCE] == 0.0 else max(zeta, 1.0)
             if ratio > 0.0:
                 damping = 2.0 * ratio * np.sqrt(k_eff * m_red)
                 spring = f_n
                 f_n = f_n - damping * v_n
-                if f_n <= 0.0:
-                    f_n, damping = 0.0, 0.0
+                if f_n <= 0.0:  # the dashpot holds the spring off: no force, no slope
+                    f_n, damping, slope = 0.0, 0.0, 0.0
                 elif f_n > 2.0 * spring:  # the dashpot pushes no harder than the spring
                     f_n, damping, k_eff = 2.0 * spring, 0.0, 2.0 * k_eff
+                    slope = k_eff
             t0, t1, t2 = u0 - v_n * n0, u1 - v_n * n1, u2 - v_n * n2
             terms[c, DAMPING_SLOPE] = damping
             terms[c, NORMAL_SPEED] = v_n
@@ -133,7 +134,7 @@ def contact_terms(bodies, offsets, points, normals, overlaps, state, params, law
             terms[c, NORMAL_FORCE] = f_n * n0
             terms[c, NORMAL_FORCE + 1] = f_n * n1
             terms[c, NORMAL_FORCE + 2] = f_n * n2
-            terms[c, SPRING_SLOPE] = k_eff
+            terms[c, SPRING_SLOPE] = slope
             terms[c, NORMAL_MAGNITUDE] = f_n
             terms[c, ENERGY] = energy
             terms[c, ACTIVE] = 1.0

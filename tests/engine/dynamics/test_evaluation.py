@@ -129,6 +129,8 @@ def summed(found, state, params, law) -> dict:
             f_n = min(max(spring - 2 * zeta * math.sqrt(k_eff * m_red) * v_n, 0.0), 2 * spring)
             if f_n == 2 * spring and zeta > 0:
                 k_eff = 2 * k_eff
+            elif f_n == 0.0:  # held off by the dashpot: no force, and none nearby either
+                k_eff = 0.0
             slide = u - v_n * nrm
             g = -mu * f_n * slide / math.sqrt(slide @ slide + v_slip**2)
             for body, sign in ((b, 1.0), (a, -1.0)):
