@@ -10,6 +10,8 @@ while the arrays they come from are the same; :func:`body_terms` and
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,29 +62,47 @@ class BodyCache:
 
     The terms are rebuilt when the bodies, their masses or fixed flags, gravity or the
     external forces change (arrays replaced, or edited in place); the smallest moments
-    when ``scene.inertia`` is replaced or ``scene.fixed`` changes (replaced or edited in place).
+    when ``scene.inertia`` is replaced or ``scene.fixed`` changes (replaced or edited in
+    place). The terms of the last ``KEPT`` sets of values are kept: a scene with sleeping
+    bodies fixes them around every step (:mod:`engine.dynamics.sleep`), and its terms
+    alternate between two fixed masks. While :meth:`held` (a time step, which changes none
+    of these), the terms are returned without looking at the arrays: the check costs
+    microseconds, and a Picard step asks a hundred times.
     """
 
+    KEPT = 2
+
     def __init__(self) -> None:
-        self._terms: tuple[tuple, tuple, BodyTerms] | None = None  # arrays, values, terms
+        self._terms: list[tuple[tuple, tuple, BodyTerms]] = []  # arrays, values, terms
+        self._held: BodyTerms | None = None
         self._smallest: tuple[np.ndarray, bytes, np.ndarray] | None = None
 
     def terms(self, scene) -> BodyTerms:
         """The :class:`BodyTerms` of ``scene``'s bodies."""
+        if self._held is not None:
+            return self._held
         arrays = (scene.masses, scene.fixed, scene.tree_index)
         values = tuple(
             a.tobytes() for a in (scene.masses, scene.fixed, scene.gravity, scene.external_forces)
         )
-        cached = self._terms
-        if (
-            cached is not None
-            and all(a is b for a, b in zip(cached[0], arrays, strict=True))
-            and cached[1] == values
-        ):
-            return cached[2]
+        for kept in self._terms:
+            if all(a is b for a, b in zip(kept[0], arrays, strict=True)) and kept[1] == values:
+                return kept[2]
         terms = BodyTerms.of(scene)
-        self._terms = (arrays, values, terms)
+        self._terms = [(arrays, values, terms), *self._terms[: self.KEPT - 1]]
         return terms
+
+    @contextmanager
+    def held(self, scene) -> Iterator[BodyTerms]:
+        """Within this block, :meth:`terms` returns ``scene``'s terms of its start without
+        checking its arrays: the caller changes none of them (nested blocks keep the
+        outermost's)."""
+        outer = self._held
+        self._held = outer if outer is not None else self.terms(scene)
+        try:
+            yield self._held
+        finally:
+            self._held = outer
 
     def smallest_inertia(self, scene) -> np.ndarray:
         """(n,) float64 smallest principal moment of each free body (NaN for fixed ones),

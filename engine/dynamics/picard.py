@@ -193,6 +193,11 @@ def step(scene, dt: float, scheme: str, halvings_left: int | None = None) -> Ste
     (:func:`travel` ≤ 1: the step cannot jump from outside the contact halo to beyond
     it). Above that, ``scene.substeps`` splits the step into ⌈travel⌉ equal sub-steps;
     otherwise a :class:`TunnellingWarning` says so."""
+    with scene.body_cache.held(scene):  # a step changes no mass, mask or force
+        return _step(scene, dt, scheme, halvings_left)
+
+
+def _step(scene, dt: float, scheme: str, halvings_left: int | None) -> StepStats:
     start = time.perf_counter()
     ratio, body = travel(scene, dt)
     if ratio > 1.0 and halvings_left is None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from engine.kernels.jit import JIT
+from engine.kernels.jit import EXACT_BORROW, JIT
 
 EXACT = {**JIT, "fastmath": False}
 EXACT_INLINE = {**EXACT, "inline": "always"}
@@ -230,8 +230,8 @@ def within_reach(centres, listed, allowed):
     return True
 
 
-@njit(**EXACT_INLINE)
-def _candidate(centres, radii, fixed, i, j):
+@njit(**EXACT_BORROW)  # spliced in at Numba-IR level, its three arrays' reference counts
+def _candidate(centres, radii, fixed, i, j):  # cost 44 µs of all_pairs' 47 µs on 53 bodies
     """Bodies ``i`` and ``j`` are a candidate pair: not both fixed, and
     ``dx² + dy² + dz² ≤ (r_i + r_j)²`` in exactly this float64 order."""
     if fixed[i] and fixed[j]:

@@ -277,3 +277,33 @@ def test_a_new_cache_starts_empty():
     assert terms is not body_terms(scene)  # its own, not the scene's
     assert cache.terms(scene) is terms
     assert_terms(terms, scene)
+
+
+def test_the_terms_of_two_fixed_masks_are_both_kept():
+    """A scene with sleeping bodies fixes them around each step: its terms alternate
+    between two masks, and both stay cached (the same objects, no rebuild)."""
+    scene = small_scene()
+    awake = body_terms(scene)
+    scene.fixed[2] = True
+    asleep = body_terms(scene)
+    assert asleep is not awake and asleep.free[2] == np.False_
+    scene.fixed[2] = False
+    assert body_terms(scene) is awake
+    scene.fixed[2] = True
+    assert body_terms(scene) is asleep
+    assert_terms(asleep, scene)
+
+
+def test_held_terms_are_the_blocks_start_and_checked_again_after_it():
+    scene = small_scene()
+    before = body_terms(scene)
+    with scene.body_cache.held(scene) as held:
+        assert held is before
+        scene.gravity[:] = (0.0, 0.0, -1.0)  # not looked at while held
+        assert body_terms(scene) is before
+        with scene.body_cache.held(scene) as inner:  # nested: the outer block's
+            assert inner is before
+        assert body_terms(scene) is before
+    after = body_terms(scene)
+    assert after is not before
+    assert_terms(after, scene)
