@@ -81,7 +81,7 @@ class BodyCache:
         """The :class:`BodyTerms` of ``scene``'s bodies."""
         if self._held is not None:
             return self._held
-        arrays = (scene.masses, scene.fixed, scene.tree_index)
+        arrays = (scene.masses, scene.tree_index)  # the fixed mask by value: sleep replaces it
         values = tuple(
             a.tobytes() for a in (scene.masses, scene.fixed, scene.gravity, scene.external_forces)
         )

@@ -113,6 +113,18 @@ class MovedContacts:
         epsilon, bodies = scene.epsilon, contacts.bodies
         self.reach = np.ascontiguousarray(epsilon[bodies[:, 0]] + epsilon[bodies[:, 1]])
         self.counters = unsearched(contacts.counters)
+        self.incidence = _incidence(bodies, len(positions))
+        self._matched: tuple | None = None  # (history, its contacts' rows)
+
+    def matched(self, history, moved: Contacts, positions, orientations, epsilon):
+        """(c, HISTORY) float64: the contacts' history (``history.matched`` of ``moved``,
+        this set at ``positions``, ``orientations``), matched at the set's first
+        evaluation and kept: a frozen set keeps its contacts, and so their identities."""
+        kept = self._matched
+        if kept is None or kept[0] is not history:
+            kept = (history, history.matched(moved, positions, orientations, epsilon))
+            self._matched = kept
+        return kept[1]
 
     def __call__(self, positions, orientations):
         found = self.contacts
@@ -146,8 +158,11 @@ def evaluate(
     ``h`` (None: no tangential spring is stretched, no allowance)."""
     x, q, v, w = configuration
     contacts, surrogate, changed = search(x, q)
+    frozen = isinstance(search, MovedContacts)
     if history is None:
         matched = np.zeros((len(contacts.points), kf.HISTORY))
+    elif frozen:
+        matched = search.matched(history, contacts, x, q, scene.epsilon)
     else:
         matched = history.matched(contacts, x, q, scene.epsilon)
     bodies = body_terms(scene)
@@ -168,7 +183,10 @@ def evaluate(
             if past is None:
                 past = np.zeros((len(found.points), kf.HISTORY))
             params = (scene.masses, scene.epsilon, past, float(h))
-            energy += contact_forces(found, state, params, parameters, out, scene.threads, kept)
+            incidence = search.incidence if frozen and found is contacts else None
+            energy += contact_forces(
+                found, state, params, parameters, out, scene.threads, kept, incidence
+            )
     if len(bodies.fixed):
         for array in (force, torque, friction_force, friction_torque):
             array[bodies.fixed] = 0.0
@@ -185,7 +203,7 @@ def evaluate(
 
 
 def contact_forces(
-    found: Contacts, state, params, law, out, threads: int | None, terms=None
+    found: Contacts, state, params, law, out, threads: int | None, terms=None, incidence=None
 ) -> float:
     """Add the forces of the contacts ``found`` to ``out`` with the contact ``law`` (the
     kernel tuple of a :class:`~engine.dynamics.forces.ContactModel`); returns their elastic
@@ -194,7 +212,8 @@ def contact_forces(
     mass for a fixed body), the contacts' ``(c, HISTORY)`` history and the step length
     (:func:`~engine.kernels.dynamics.contact_forces.contact_terms`); ``out`` as
     :func:`~engine.kernels.dynamics.contact_forces.apply_terms` takes it; ``terms``, if
-    given, a ``(c, TERMS)`` float64 array that receives the contacts' terms.
+    given, a ``(c, TERMS)`` float64 array that receives the contacts' terms; ``incidence``,
+    if given, each body's pairs (:func:`_incidence` of ``found.bodies``).
 
     Each contact's terms are computed in parts of the pairs, then each body sums its own
     contacts in pair order, in parts of the bodies, on the worker threads (``threads``;
@@ -211,8 +230,7 @@ def contact_forces(
         )  # fmt: skip
 
     in_parts(threads, len(bodies), terms_part, least=_PAIRS_PER_PART)
-    starts, entries = np.empty(len(state[0]) + 1, np.int64), np.empty(2 * len(bodies), np.int64)
-    kf.incidence(bodies, starts, entries)
+    starts, entries = incidence or _incidence(bodies, len(state[0]))
     friction = law[3] > 0.0
 
     def bodies_part(first: int, last: int) -> None:
@@ -222,6 +240,14 @@ def contact_forces(
 
     in_parts(threads, len(starts) - 1, bodies_part, least=_BODIES_PER_PART)
     return kf.elastic_energy(terms)
+
+
+def _incidence(bodies: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(starts (n + 1,), entries (2k,))`` int64: each of ``n`` bodies' pairs among
+    ``bodies (k, 2)`` (:func:`~engine.kernels.dynamics.contact_forces.incidence`)."""
+    starts, entries = np.empty(n + 1, np.int64), np.empty(2 * len(bodies), np.int64)
+    kf.incidence(bodies, starts, entries)
+    return starts, entries
 
 
 def evaluation_key(scene, search) -> tuple:

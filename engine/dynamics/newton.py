@@ -73,12 +73,12 @@ class Linearization:
             return Wrench(
                 np.ascontiguousarray(applied[:, :3]), np.ascontiguousarray(applied[:, 3:])
             )
-        z = np.zeros_like(rhs)
+        z, change = np.empty_like(rhs), np.empty_like(rhs)
         kl.newton_correction(
             contacts, self.origins, self.mass, self.inertia, self.free, self.h, rhs,
-            SOLVE_TOLERANCE, SOLVE_ITERATIONS, z,
+            SOLVE_TOLERANCE, SOLVE_ITERATIONS, z, change,
         )  # fmt: skip
-        applied = forces - self._product(evaluation, z, self.h, 1.0)
+        applied = forces - change
         applied[self.fixed_rows] = 0.0
         return Wrench(np.ascontiguousarray(applied[:, :3]), np.ascontiguousarray(applied[:, 3:]))
 

@@ -485,6 +485,9 @@ def _advance(scene, start, force, torque, dt: float, out) -> None:
     step)."""
     inverse_mass = body_terms(scene).inverse_mass
     inertia, inverse_inertia = scene.inertia, scene.inverse_inertia
+    if len(inverse_mass) < 2 * _BODIES_PER_PART:  # one part: no views, no hand-off
+        kd.advance(start, force, torque, inverse_mass, inertia, inverse_inertia, dt, out)
+        return
 
     def part(a: int, b: int) -> None:
         kd.advance(

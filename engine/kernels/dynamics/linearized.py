@@ -306,13 +306,16 @@ def _dot(x, y, free):
 
 
 @njit(**JIT)
-def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance, most, z):
+def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance, most, z,
+                      change):  # fmt: skip
     """Solve (M + h²K + h·C)·z = ``rhs (n, 6)`` for the free bodies by BiCGSTAB (van der
     Vorst), preconditioned with each body's 6×6 block, to a relative residual
     ``tolerance`` or ``most`` iterations; writes ``z (n, 6)`` (0 on bodies not ``free``)
-    and returns the iterations taken. ``contacts = (bodies, offsets, points, normals,
-    terms)`` of one evaluation; ``mass (n,)``, world ``inertia (n, 3, 3)``. The matrix is
-    not symmetric where friction follows the normal force (module docstring)."""
+    and ``change (n, 6)`` = (h·K + C)·z on the free bodies (0 elsewhere: the contact
+    forces' change under the correction, from the same blocks), and returns the
+    iterations taken. ``contacts = (bodies, offsets, points, normals, terms)`` of one
+    evaluation; ``mass (n,)``, world ``inertia (n, 3, 3)``. The matrix is not symmetric
+    where friction follows the normal force (module docstring)."""
     bodies, offsets = contacts[0], contacts[1]
     n = mass.shape[0]
     diagonal, coupling = np.empty((n, 6, 6)), np.empty((bodies.shape[0], 2, 6, 6))
@@ -327,6 +330,7 @@ def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance,
             coupled += 1
     active = active[:coupled]
     z[:] = 0.0
+    change[:] = 0.0
     r = rhs.copy()
     for b in range(n):
         if not free[b]:
@@ -334,6 +338,29 @@ def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance,
     start = np.sqrt(_dot(r, r, free))
     if start == 0.0:
         return 0
+    taken = _bicgstab(diagonal, coupling, bodies, active, factors, pivots, free, r, start,
+                      tolerance, most, z)  # fmt: skip
+    # (h·K + C)·z = ((M + h²K + h·C)·z − M·z)/h on the free bodies
+    _block_product(diagonal, coupling, bodies, active, z, change)
+    for b in range(n):
+        if not free[b]:
+            change[b, :] = 0.0
+            continue
+        for i in range(3):
+            own = mass[b] * z[b, i]
+            spin = inertia[b, i, 0] * z[b, 3] + inertia[b, i, 1] * z[b, 4]
+            spin += inertia[b, i, 2] * z[b, 5]
+            change[b, i] = (change[b, i] - own) / h
+            change[b, 3 + i] = (change[b, 3 + i] - spin) / h
+    return taken
+
+
+@njit(**JIT)
+def _bicgstab(diagonal, coupling, bodies, active, factors, pivots, free, r, start, tolerance,
+              most, z):  # fmt: skip
+    """BiCGSTAB on the blocks from ``r`` (the right-hand side, norm ``start`` > 0) and
+    ``z`` = 0 (:func:`newton_correction`); returns the iterations taken."""
+    n = r.shape[0]
     shadow = r.copy()
     p, v = np.zeros((n, 6)), np.zeros((n, 6))
     y, s, w, t = np.empty((n, 6)), np.empty((n, 6)), np.empty((n, 6)), np.empty((n, 6))

@@ -307,3 +307,17 @@ def test_held_terms_are_the_blocks_start_and_checked_again_after_it():
     after = body_terms(scene)
     assert after is not before
     assert_terms(after, scene)
+
+
+def test_the_terms_of_a_replaced_mask_with_the_same_values_are_kept():
+    """Sleep replaces ``scene.fixed`` around each step (a new array, the values of one of
+    two masks): the terms are found by value."""
+    scene = small_scene()
+    awake = body_terms(scene)
+    original = scene.fixed
+    scene.fixed = original | (np.arange(len(scene)) == 2)
+    asleep = body_terms(scene)
+    scene.fixed = original.copy()
+    assert body_terms(scene) is awake
+    scene.fixed = original | (np.arange(len(scene)) == 2)
+    assert body_terms(scene) is asleep

@@ -58,13 +58,19 @@ def test_the_correction_solves_the_linearised_system():
     # the sliding friction follows the normal force: the matrix is not symmetric
     assert np.abs(block - block.T).max() > 1e-6 * np.abs(block).max()
     rhs = np.random.default_rng(3).normal(size=(n, 6))
-    z = np.zeros((n, 6))
+    z, change = np.full((n, 6), np.nan), np.full((n, 6), np.nan)
     taken = kl.newton_correction(contacts, lin.origins, lin.mass, lin.inertia, lin.free, h,
-                                 rhs, 1e-12, 200, z)  # fmt: skip
+                                 rhs, 1e-12, 200, z, change)  # fmt: skip
     assert 0 < taken < 200
     expected = np.linalg.solve(block, rhs.ravel()[free])
     np.testing.assert_allclose(z.ravel()[free], expected, rtol=1e-8, atol=1e-10)
     assert not z[~lin.free].any()
+    # the forces' change (h·K + C)·z, as the contact products give it, on the free bodies
+    products = np.zeros((n, 6))
+    kl.contact_product(*contacts, lin.origins, z, h, 1.0, products)
+    scale = np.abs(products).max()
+    np.testing.assert_allclose(change[lin.free], products[lin.free], rtol=0, atol=1e-11 * scale)
+    assert not change[~lin.free].any()
 
 
 def test_the_system_blocks_are_the_linearised_matrix_and_factor_it():
