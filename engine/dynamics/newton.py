@@ -45,10 +45,8 @@ class Linearization:
         self.origins = x
         self.free = ~scene.fixed
         self.mass = np.where(self.free, scene.masses, 0.0)
-        rot = np.empty((len(x), 3, 3))
-        kd.rotation_matrices(q, rot)
-        self.inertia = np.einsum("bij,bjk,blk->bil", rot, scene.inertia, rot)
-        self.inertia[~self.free] = 0.0
+        self.inertia = np.empty((len(x), 3, 3))
+        kd.world_inertias(q, scene.inertia, self.free, self.inertia)
         self.velocity = np.concatenate([start[2], start[3]], axis=1)
         self.fixed_rows = body_terms(scene).fixed
 

@@ -26,6 +26,19 @@ def rotation_matrices(orientations, out):
 
 
 @njit(**JIT)
+def world_inertias(orientations, inertia_body, free, out):
+    """``out (n, 3, 3)`` float64: R·I·Rᵀ of each body (``orientations (n, 4)`` unit
+    quaternions, ``inertia_body (n, 3, 3)``), zero where not ``free (n,)`` bool."""
+    rot = np.empty((3, 3))
+    for b in range(orientations.shape[0]):
+        if not free[b]:
+            out[b] = 0.0
+            continue
+        quaternion_rotation(orientations[b], rot)
+        _conjugate(rot, inertia_body[b], out[b])
+
+
+@njit(**JIT)
 def placed_bodies(positions, orientations, centers, spheres, limit, out):
     """Place the bodies: ``out = (origins, centres)``, each ``(n, 3)`` float64,
     receives each body's mesh-frame origin x − R·c and the world centre origin + R·s of its

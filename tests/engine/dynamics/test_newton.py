@@ -257,3 +257,22 @@ def test_a_contact_its_dashpot_holds_off_has_no_slopes():
     out = np.zeros((2, 6))
     kl.contact_product(bodies, offsets, points, normals, terms, positions, z, 1e-3, 1.0, out)
     assert not out.any()
+
+
+def test_the_world_inertias_are_the_body_tensors_turned():
+    """``motion.world_inertias``: R·I·Rᵀ of each free body (R of its unit quaternion), zero
+    for bodies not free."""
+    from engine.kernels.dynamics import motion as kd
+
+    rng = np.random.default_rng(11)
+    q = rng.normal(size=(5, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    spread = rng.normal(size=(5, 3, 3))
+    inertia = spread @ spread.transpose(0, 2, 1) + np.eye(3)
+    free = np.array([True, False, True, True, False])
+    rot, out = np.empty((5, 3, 3)), np.full((5, 3, 3), np.nan)
+    kd.rotation_matrices(q, rot)
+    kd.world_inertias(q, inertia, free, out)
+    expected = np.einsum("bij,bjk,blk->bil", rot, inertia, rot)
+    np.testing.assert_allclose(out[free], expected[free], rtol=1e-13, atol=1e-13)
+    assert not out[~free].any()
