@@ -109,10 +109,11 @@ searched iterations after the last one); after that the step relaxes from the la
 iterate."""
 MAX_FREEZES = 10
 """Frozen contact sets a step solves on before it iterates on searched forces only."""
-FROZEN_TOLERANCE = 0.5
-"""A frozen set's iteration settles at this fraction of ``picard_tolerance`` … (0.1 before
-Newton's iterates converged quadratically; since then, 0.5 took 8 % fewer iterations on the
-settled 48-object pile and the ramp still slid at Coulomb's acceleration to 0.00 %)"""
+FROZEN_TOLERANCE = 0.1
+"""A frozen set's iteration settles at this fraction of ``picard_tolerance`` … (the
+search that checks it then has the rest of the tolerance for what the frozen set missed:
+0.3 and 0.5 took 8 % fewer iterations on the settled 48-object pile, but on one seed of 8
+the pile cycled through frozen sets, 21 and 153 steps unconverged against 10)"""
 FROZEN_TIGHT_ITERATIONS = 4
 """… within its first this many iterations, and after them at the tolerance itself (a set
 whose springs flip between sticking and sliding need not be solved so far)."""
