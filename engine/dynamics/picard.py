@@ -34,7 +34,10 @@ of the last search carried rigidly with the bodies
 smoothly, so the iteration does not flip between contact sets. Once it settles on a
 frozen set, a search of that same configuration decides: if its forces pass Picard's test
 the step is accepted (the accepted forces are always a search's), else the iteration goes
-on from them on a new frozen set; after ``MAX_FREEZES`` sets every iteration searches. A
+on from them on a new frozen set; after ``MAX_FREEZES`` sets, or as soon as the searches
+go from one contact set to another and back (:func:`~engine.dynamics.relaxation.cycling`: a
+configuration on a switch of the contact set, where the frozen sets would alternate until
+they ran out), every iteration searches. A
 frozen set is solved to ``FROZEN_TOLERANCE`` of the tolerance (cheap: no search), so the
 accepted step sits near the set's own fixed point rather than anywhere within 1 % of the
 forces on a body (a sliding box's net force is far less than that). The
@@ -345,6 +348,9 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                 recent = [] if changed else [*recent[-5:], total]
                 if not settled and iterations > SWITCH_AFTER:
                     settled = rx.switch(scene, recent, applied, stiffness[:, 2], radius)
+                if not settled and freezes < MAX_FREEZES:
+                    if rx.cycling(scene, recent, stiffness[:, 2], radius):
+                        freezes = MAX_FREEZES  # on a switch: the searched iterations resolve it
             elif settled:  # solved on the frozen set: a search of this guess decides
                 frozen = None
                 continue

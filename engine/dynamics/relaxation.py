@@ -20,7 +20,7 @@ from engine.dynamics.evaluation import Wrench
 from engine.kernels.dynamics import contact_forces as kf
 from engine.kernels.dynamics import motion as kd
 
-__all__ = ["aitken", "first_weights", "flat", "settled", "switch"]
+__all__ = ["aitken", "cycling", "first_weights", "flat", "settled", "switch"]
 
 BETA_MAX = 1.5
 BETA_MIN = 0.01
@@ -118,6 +118,20 @@ def switch(scene, recent, applied, gross, radius) -> bool:
     t = float(np.clip(offset @ span / (span @ span), 0.0, 1.0)) if span @ span > 0 else 0.0
     point = Wrench(a.force + t * step_ab.force, a.torque + t * step_ab.torque)
     return settled(scene, applied, applied.minus(point), gross, radius)
+
+
+def cycling(scene, recent, gross, radius) -> bool:
+    """The last three computed totals ``recent`` (as :func:`switch` takes them) go from A
+    to B and back to A: within the Picard tolerance of each other, the first and the last,
+    not the middle one. Frozen contact sets then cycle too: on A's set the iteration
+    settles where a search finds B, on B's where it finds A — a configuration on a switch
+    of the contact set, which the frozen sets cannot resolve and :func:`switch` can."""
+    if len(recent) < 3:
+        return False
+    a, b, again = (Wrench(*r) for r in recent[-3:])
+    return settled(scene, again, again.minus(a), gross, radius) and not settled(
+        scene, again, again.minus(b), gross, radius
+    )
 
 
 def mean(wrenches: list[Wrench]) -> Wrench:

@@ -115,3 +115,21 @@ def test_picard_settles_on_a_contact_set_switch_and_only_there():
     c = (b[0] + 2.0 * (b[0] - a[0]), b[1])
     assert not switch(scene, [a, b, c, b], middle, gross, radius)  # three states
     assert not switch(scene, [a, a, a, b], middle, gross, radius)  # B seen once
+
+
+def test_a_cycle_of_contact_sets_is_a_to_b_and_back():
+    """``cycling``: the last three computed totals go from A to B and back to A (frozen
+    contact sets that alternate); not a transition, not three states, not too few."""
+    from engine.dynamics.relaxation import cycling
+
+    scene = _stack()
+    a, b = _two_states(scene, np.random.default_rng(5))
+    gross, radius = np.full(len(scene), 9.81), np.ones(len(scene))
+    assert cycling(scene, [a, b, a], gross, radius)
+    assert cycling(scene, [b, b, a, b], gross, radius)  # the last three
+    assert not cycling(scene, [a, a, b], gross, radius)  # a transition
+    assert not cycling(scene, [a, b, b], gross, radius)
+    assert not cycling(scene, [a, a, a], gross, radius)  # no change
+    assert not cycling(scene, [b, a], gross, radius)  # too few
+    c = (b[0] + 2.0 * (b[0] - a[0]), b[1])
+    assert not cycling(scene, [a, b, c], gross, radius)  # three states
