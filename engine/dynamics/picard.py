@@ -348,9 +348,9 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                 recent = [] if changed else [*recent[-5:], total]
                 if not settled and iterations > SWITCH_AFTER:
                     settled = rx.switch(scene, recent, applied, stiffness[:, 2], radius)
-                if not settled and freezes < MAX_FREEZES:
-                    if rx.cycling(scene, recent, stiffness[:, 2], radius):
-                        freezes = MAX_FREEZES  # on a switch: the searched iterations resolve it
+                cycle = not settled and freezes < MAX_FREEZES
+                if cycle and rx.cycling(scene, recent, stiffness[:, 2], radius):
+                    freezes = MAX_FREEZES  # on a switch: the searched iterations resolve it
             elif settled:  # solved on the frozen set: a search of this guess decides
                 frozen = None
                 continue
