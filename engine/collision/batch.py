@@ -233,13 +233,16 @@ class TreeBank:
         cache=None,
         keys=None,
         keep_pairs: bool = True,
+        read_only: bool = False,
     ):
         """Run queries that are already valid (:meth:`find_contacts` checks them; the
         scene's own arrays are valid by construction), optionally through a
         :class:`PairCache` under ``keys (k,) int64``. ``queries``: a
         :class:`~engine.kernels.collision.batch.PairQueries`, or its six arrays in order.
         ``keep_pairs=False`` counts the face pairs (``pair_offsets``) without writing them
-        (``pairs`` then raises): a scene step reads only their count."""
+        (``pairs`` then raises): a scene step reads only their count. ``read_only``: the
+        cache's lists serve where they are valid, and it is left as it was (a search of
+        some pairs only: the lists of the others stay)."""
         queries = kb.PairQueries(*queries)
         k = len(queries.tree_a)
         threads = int(threads or CPUS)
@@ -249,7 +252,7 @@ class TreeBank:
             chunks = min(k // _PAIRS_PER_TASK, _CHUNKS_PER_THREAD * threads)
             bounds = np.linspace(0, k, chunks + 1).astype(np.int64)
         # the pairs and chunks of the cache's last search: chunk c reads and renews part c
-        by_part = cache is not None and cache._aligned(keys, bounds)
+        by_part = cache is not None and not read_only and cache._aligned(keys, bounds)
         if by_part:
             slots = np.arange(k, dtype=np.int64) - np.repeat(bounds[:-1], np.diff(bounds))
         else:
@@ -294,7 +297,7 @@ class TreeBank:
             pool = worker_pool(threads)
             parts = [f.result() for f in [pool.submit(chunk, c) for c in range(len(bounds) - 1)]]
         joined = _join(parts)
-        if cache is not None and not by_part:
+        if cache is not None and not by_part and not read_only:
             kept = counts[:, kb.COUNT_LISTED] == 1
             cache._replace(keys, slots, kept, joined.near_offsets, parts, bounds, threads)
         return ContactBatch(

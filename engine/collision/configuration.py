@@ -83,14 +83,21 @@ def batched_contacts(
     kernel: str,
     threads: int | None,
     cache: PairCache | None,
+    read_only: bool = False,
+    triangle_pairs: np.ndarray | None = None,
 ) -> Contacts:
     """The multiresolution contacts of body ``pairs (k, 2)`` int64 (a < b, distinct) in one
     batched call: body i is tree ``tree_index[i]`` of ``bank`` with its mesh-frame origin at
     ``origins (n, 3)`` float64 and orientation ``orientations (n, 4)`` (unit within 1e-6,
-    renormalised here as the bank would); pair (a, b) is cached under ``a·n + b``."""
+    renormalised here as the bank would); pair (a, b) is cached under ``a·n + b``
+    (``read_only``: the cache's lists serve, but it keeps them as they were).
+    ``triangle_pairs (k,)`` int64, if given, receives each pair's triangle pairs in contact."""
     queries = gathered_queries(pairs, tree_index, origins, orientations, threads)
     keys = pairs[:, 0] * len(tree_index) + pairs[:, 1]
-    batch = bank.run(queries, kernel, threads, cache, keys, keep_pairs=False)
+    batch = bank.run(queries, kernel, threads, cache, keys, keep_pairs=False,
+                     read_only=read_only)  # fmt: skip
+    if triangle_pairs is not None:
+        triangle_pairs[:] = np.diff(batch.pair_offsets)
     totals = batch.totals
     counters = dict.fromkeys(SEARCH_COUNTERS, 0)
     for name, column in _BATCH_COUNTERS:

@@ -44,6 +44,13 @@ forces on a body (a sliding box's net force is far less than that). The
 implicit midpoint rule's first frozen set is the last step's midpoint contacts
 (:func:`_carried_contacts`), so a step whose contacts do not change costs one search.
 
+Islands (:mod:`engine.dynamics.islands`): when a search's forces fail Picard's test on some
+bodies only, the bodies outside their islands (connected by acting contacts) keep the
+applied forces they passed with — Newton's corrections and the relaxation leave their rows —
+so their configuration stays the same bit for bit, and the next search searches only the
+body pairs with a moved body (multiresolution search; the others' contacts are the same).
+Every search's forces are still tested on every body, held or not.
+
 Picard relaxation (:mod:`engine.dynamics.relaxation`: the paper's "weighted average
 between the currently computed forces and the forces of the previous step", with Aitken's
 weights) conserves momentum at every iteration too. Converged when no body's computed force
@@ -79,6 +86,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine.collision.configuration import SEARCH_COUNTERS
+from engine.dynamics import islands
 from engine.dynamics import relaxation as rx
 from engine.dynamics.bodies import body_terms
 from engine.dynamics.evaluation import (
@@ -256,13 +264,21 @@ def _step(scene, dt: float, scheme: str, halvings_left: int | None) -> StepStats
 
 
 class _Search:
-    """A fresh search of every configuration (flat or multiresolution); never changes."""
+    """A fresh search of every configuration (flat or multiresolution); with ``partial``
+    (multiresolution only), of the body pairs with a body moved since its last search
+    (:func:`~engine.dynamics.islands.search`)."""
 
     def __init__(self, scene, hierarchy: bool) -> None:
         self.scene, self.hierarchy = scene, hierarchy
+        self.partial = False
+        self.last: islands.Searched | None = None
 
     def __call__(self, positions, orientations):
-        return self.scene.contacts(positions, orientations, self.hierarchy), None, False
+        if not self.hierarchy:
+            return self.scene.contacts(positions, orientations, False), None, False
+        last = self.last if self.partial else None
+        self.last = islands.search(self.scene, positions, orientations, last)
+        return self.last.contacts, None, False
 
 
 def _explicit(scene, dt: float) -> dict:
@@ -305,6 +321,11 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     frozen: MovedContacts | None = None
     frozen_at = 0  # the iteration that first evaluated the current frozen set
     searched = True
+    # islands (engine.dynamics.islands): the bodies that passed a search's test keep the
+    # applied forces they passed with while Newton corrects the others
+    hold: np.ndarray | None = None  # (n,) bool
+    held: Wrench | None = None
+    by_island = isinstance(search, _Search) and search.hierarchy
     while iterations < scene.max_picard_iterations:
         iterations += 1
         warm = reused(scene, key, start) if iterations == 1 else None
@@ -342,8 +363,9 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             on_set = iterations - frozen_at  # iterations on this frozen set so far
             tighter = 1.0 if searched or on_set > FROZEN_TIGHT_ITERATIONS else FROZEN_TOLERANCE
             settled = forceless or rx.settled(
-                scene, total, mismatch, stiffness[:, 2], radius, tighter
-            )
+                scene, total, mismatch, stiffness[:, 2], radius, tighter,
+                None if searched else hold,
+            )  # fmt: skip
             if searched:
                 recent = [] if changed else [*recent[-5:], total]
                 if not settled and iterations > SWITCH_AFTER:
@@ -351,6 +373,11 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                 cycle = not settled and freezes < MAX_FREEZES
                 if cycle and rx.cycling(scene, recent, stiffness[:, 2], radius):
                     freezes = MAX_FREEZES  # on a switch: the searched iterations resolve it
+                if not settled and by_island and not changed:
+                    failing = rx.unsettled(scene, total, mismatch, stiffness[:, 2], radius)
+                    hold = ~scene.fixed & ~islands.moving(scene, evaluation, failing)
+                    hold, held = (hold, applied) if hold.any() else (None, None)
+                    search.partial = hold is not None
             elif settled:  # solved on the frozen set: a search of this guess decides
                 frozen = None
                 continue
@@ -366,8 +393,13 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             if newton is not None and not changed and growing and backtracks < BACKTRACKS:
                 # damped Newton: half of the last correction, from the iterate it started at
                 backtracks += 1
-                applied = Wrench(
-                    0.5 * (anchor.force + applied.force), 0.5 * (anchor.torque + applied.torque)
+                applied = _held(
+                    Wrench(
+                        0.5 * (anchor.force + applied.force),
+                        0.5 * (anchor.torque + applied.torque),
+                    ),
+                    held,
+                    hold,
                 )
                 _advance(scene, start, applied.force, applied.torque, dt, guess)
                 continue
@@ -378,7 +410,7 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             last_size = size
             if newton is not None:
                 anchor = applied  # the iterate the correction starts from
-                applied = newton.corrected(evaluation, applied)
+                applied = _held(newton.corrected(evaluation, applied), held, hold)
             else:
                 if changed:  # a front moved: the secant history no longer describes the map
                     residual = [None, None]
@@ -391,6 +423,9 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                         relaxed[part].force + beta[part] * change[part].force,
                         relaxed[part].torque + beta[part] * change[part].torque,
                     )
+                if hold is not None:  # held: the forces they passed with, as the normal part
+                    relaxed = [_held(relaxed[NORMAL], held, hold), _held(relaxed[FRICTION],
+                               _zero(held), hold)]  # fmt: skip
                 applied = relaxed[NORMAL].plus(relaxed[FRICTION])
         if searched and freezes < MAX_FREEZES and newton is not None:
             frozen, freezes = (
@@ -417,6 +452,16 @@ def _carried_contacts(scene, key: tuple) -> MovedContacts | None:
     if warm is None or warm.key != key:
         return None
     return MovedContacts(scene, warm.evaluation.contacts, warm.state[0], warm.state[1])
+
+
+def _held(applied: Wrench, held: Wrench | None, hold: np.ndarray | None) -> Wrench:
+    """``applied`` with the rows ``hold (n,)`` bool of ``held`` (bodies whose islands
+    passed a search's test keep the forces they passed with)."""
+    if hold is None:
+        return applied
+    force, torque = applied.force.copy(), applied.torque.copy()
+    force[hold], torque[hold] = held.force[hold], held.torque[hold]
+    return Wrench(force, torque)
 
 
 def _parts(applied: Wrench, relaxed: list[Wrench] | None) -> list[Wrench]:

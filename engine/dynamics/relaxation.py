@@ -20,7 +20,7 @@ from engine.dynamics.evaluation import Wrench
 from engine.kernels.dynamics import contact_forces as kf
 from engine.kernels.dynamics import motion as kd
 
-__all__ = ["aitken", "cycling", "first_weights", "flat", "settled", "switch"]
+__all__ = ["aitken", "cycling", "first_weights", "flat", "settled", "switch", "unsettled"]
 
 BETA_MAX = 1.5
 BETA_MIN = 0.01
@@ -63,14 +63,34 @@ def first_weights(scene, stiffness, radius, dt: float) -> list[float]:
     return [1.0 / (1.0 + gain_n), 1.0 / (1.0 + gain_t)]
 
 
-def settled(scene, computed, mismatch, gross, radius, tighter: float = 1.0) -> bool:
+def unsettled(scene, computed, mismatch, gross, radius) -> np.ndarray:
+    """(n,) bool: the free bodies that fail :func:`settled`'s test (at the tolerance)."""
+    bodies = body_terms(scene)
+    out = np.empty(len(radius), np.bool_)
+    kf.unsettled(
+        (computed.force, computed.torque),
+        (mismatch.force, mismatch.torque),
+        gross,
+        bodies.size,
+        radius,
+        scene.fixed,
+        scene.picard_tolerance,
+        ATOL,
+        bodies.weight,
+        out,
+    )
+    return out
+
+
+def settled(scene, computed, mismatch, gross, radius, tighter: float = 1.0, skip=None) -> bool:
     """Self-consistent: every free body's computed force and torque differ from the applied
     ones (``mismatch``) by at most ``tighter`` × ``scene.picard_tolerance`` of the forces
     acting on it —
     the larger of its net force and the sum of its contact forces' magnitudes ``gross
     (n,)`` plus its weight (a body squeezed between equal and opposite contacts has a
     near-zero net force; relative to it, no iteration would ever settle) — and torques by
-    at most that times the lever ``radius``. ``computed``, ``mismatch`` : Wrench."""
+    at most that times the lever ``radius``. ``computed``, ``mismatch`` : Wrench.
+    ``skip (n,)`` bool: bodies left out as the fixed ones are."""
     bodies = body_terms(scene)
     return kf.settled(
         (computed.force, computed.torque),
@@ -78,7 +98,7 @@ def settled(scene, computed, mismatch, gross, radius, tighter: float = 1.0) -> b
         gross,
         bodies.size,
         radius,
-        scene.fixed,
+        scene.fixed if skip is None else scene.fixed | skip,
         tighter * scene.picard_tolerance,
         ATOL,
         bodies.weight,

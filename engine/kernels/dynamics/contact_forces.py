@@ -384,6 +384,67 @@ def settled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol
 
 
 @njit(**JIT)
+def unsettled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol, weight, out):
+    """:func:`settled`'s test body by body: ``out (n,)`` bool, True for each body not
+    ``fixed`` whose force or torque mismatch is beyond it; returns how many."""
+    force, torque = computed
+    mismatch_f, mismatch_t = mismatch
+    n = force.shape[0]
+    largest = 0.0
+    for b in range(n):
+        if not fixed[b]:
+            largest = max(largest, _size(force, b, gross[b] + body_size[b]))
+    floor = atol * max(largest, weight)
+    count = 0
+    for b in range(n):
+        out[b] = False
+        if fixed[b]:
+            continue
+        size_f = _size(force, b, gross[b] + body_size[b])
+        size_t = _size(torque, b, radius[b] * size_f)
+        if (
+            _norm(mismatch_f, b) > tolerance * size_f + floor
+            or _norm(mismatch_t, b) > tolerance * size_t + floor * radius[b]
+        ):
+            out[b] = True
+            count += 1
+    return count
+
+
+@njit(**JIT)
+def contact_islands(bodies, offsets, terms, free, labels):
+    """``labels (n,)`` int64: each body's island, the smallest body of its connected
+    component in the graph of the body pairs ``bodies (k, 2)`` with an acting contact
+    (``terms[:, ACTIVE]``; pair q owns contacts ``offsets[q]:offsets[q + 1]``) between two
+    ``free (n,)`` bodies (a body that is not free is an island of its own)."""
+    n = labels.shape[0]
+    for b in range(n):
+        labels[b] = b
+    for q in range(bodies.shape[0]):
+        a, b = bodies[q, 0], bodies[q, 1]
+        if not (free[a] and free[b]):
+            continue
+        acting = False
+        for c in range(offsets[q], offsets[q + 1]):
+            if terms[c, ACTIVE] != 0.0:
+                acting = True
+                break
+        if acting:
+            ra, rb = _root(labels, a), _root(labels, b)
+            labels[max(ra, rb)] = min(ra, rb)
+    for b in range(n):
+        labels[b] = _root(labels, b)
+
+
+@njit(**JIT)
+def _root(labels, b):
+    while labels[b] != b:
+        labels[b] = labels[labels[b]]  # path halving
+        b = labels[b]
+    return b
+
+
+@njit(**JIT)
 def _norm(rows, b):
     return np.sqrt(rows[b, 0] * rows[b, 0] + rows[b, 1] * rows[b, 1] + rows[b, 2] * rows[b, 2])
 
