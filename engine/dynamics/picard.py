@@ -81,11 +81,9 @@ import dataclasses
 import math
 import time
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 
-from engine.collision.configuration import SEARCH_COUNTERS
 from engine.dynamics import islands
 from engine.dynamics import relaxation as rx
 from engine.dynamics.bodies import body_terms
@@ -100,6 +98,7 @@ from engine.dynamics.evaluation import (
 )
 from engine.dynamics.history import ContactHistory, allowances, carried, govern
 from engine.dynamics.newton import Linearization
+from engine.dynamics.stats import StepStats, TunnellingWarning, combined, summary
 from engine.kernels.dynamics import contact_forces as kf
 from engine.kernels.dynamics import motion as kd
 from engine.workers import in_parts
@@ -128,62 +127,6 @@ the pile cycled through frozen sets, 21 and 153 steps unconverged against 10)"""
 FROZEN_TIGHT_ITERATIONS = 4
 """… within its first this many iterations, and after them at the tolerance itself (a set
 whose springs flip between sticking and sliding need not be solved so far)."""
-
-
-@dataclass(frozen=True)
-class StepStats:
-    """What one time step did.
-
-    scheme : str; dt : float — the step (its halves, if it was retried, are included)
-    converged : bool — Picard converged (always True for ``explicit``)
-    picard_iterations : int — Picard iterations (1 for ``explicit``)
-    evaluations : int — contact searches run: the first iteration of a step that follows
-        a converged step reuses that step's last evaluation (same configuration), and
-        iterations on a frozen contact set search nothing
-    body_pairs : int — body pairs of the narrow phase, last evaluation
-    contacts : int — merged contact points, last evaluation
-    triangle_pairs : int — finest-level triangle pairs in contact, last evaluation
-    comparisons, iterative, fallbacks, sphere_pruned, unfoldings : int — search counters
-        summed over all evaluations
-    folds : int — multiscale: sibling groups folded back into their parent
-    listed : int — body-pair searches served by the pair cache's lists (no traversal)
-    max_overlap : float — largest overlap / (ε_a + ε_b) at the end of the step
-    elastic_energy : float — energy stored in the contact springs, last evaluation
-    halvings : int — how many times the step was split because Picard did not converge
-    seconds : float — wall time
-    travel : float — the step's largest surface travel of a body relative to its ε,
-        (|v| + |ω|·R)·dt / ε at the step's start: above 1 a contact may be missed
-        (tunnelling)
-    substeps : int — sub-steps the step was split into because of ``travel`` (1: none)
-    sleeping : int — bodies asleep after the step (:mod:`engine.dynamics.sleep`)
-    """
-
-    scheme: str
-    dt: float
-    converged: bool
-    picard_iterations: int
-    evaluations: int
-    body_pairs: int
-    contacts: int
-    triangle_pairs: int
-    comparisons: int
-    iterative: int
-    fallbacks: int
-    sphere_pruned: int
-    unfoldings: int
-    folds: int
-    listed: int
-    max_overlap: float
-    elastic_energy: float
-    halvings: int
-    seconds: float
-    travel: float = 0.0
-    substeps: int = 1
-    sleeping: int = 0
-
-
-class TunnellingWarning(UserWarning):
-    """A step moves some body's surface by more than its ε: contacts may be missed."""
 
 
 def travel(scene, dt: float) -> tuple[float, int]:
@@ -218,7 +161,7 @@ def _step(scene, dt: float, scheme: str, halvings_left: int | None) -> StepStats
         k = math.ceil(ratio)
         if scene.substeps:
             parts = [step(scene, dt / k, scheme, scene.max_halvings) for _ in range(k)]
-            merged = _combined(parts, dt, time.perf_counter() - start)
+            merged = combined(parts, dt, time.perf_counter() - start)
             return dataclasses.replace(merged, travel=ratio, substeps=k)
         warnings.warn(
             TunnellingWarning(
@@ -248,7 +191,7 @@ def _step(scene, dt: float, scheme: str, halvings_left: int | None) -> StepStats
         scene.contact_history, scene.gentle_start = history, gentle
         first = step(scene, dt / 2, scheme, left - 1)
         second = step(scene, dt / 2, scheme, left - 1)
-        merged = _combined([first, second], dt, time.perf_counter() - start)
+        merged = combined([first, second], dt, time.perf_counter() - start)
         return dataclasses.replace(merged, halvings=merged.halvings + 1, travel=ratio)
     scene.time += dt
     scene.gentle_start = False
@@ -294,8 +237,8 @@ def _explicit(scene, dt: float) -> dict:
     _advance(scene, (x, q, v, w), total.force, total.torque, dt, out)
     _restore(scene, out)
     contacts = evaluation.contacts
-    summary = _summary(scene, contacts, [contacts.counters], evaluation.energy, True, 1)
-    return {**summary, "evaluations": 1}
+    told = summary(scene, contacts, [contacts.counters], evaluation.energy, True, 1)
+    return {**told, "evaluations": 1}
 
 
 def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
@@ -439,8 +382,8 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     scene.warm_start = WarmStart(key, guess, start[0], evaluation) if converged else None
     _commit_history(scene, evaluation, guess, full_dt or dt, full_dt is not None, history)
     contacts, energy = evaluation.contacts, evaluation.energy
-    summary = _summary(scene, contacts, counters, energy, converged, iterations)
-    return {**summary, "evaluations": evaluations}
+    told = summary(scene, contacts, counters, energy, converged, iterations)
+    return {**told, "evaluations": evaluations}
 
 
 def _carried_contacts(scene, key: tuple) -> MovedContacts | None:
@@ -556,41 +499,6 @@ def _advance(scene, start, force, torque, dt: float, out) -> None:
         )
 
     in_parts(scene.threads, len(inverse_mass), part, least=_BODIES_PER_PART)
-
-
-def _summary(scene, contacts, counters, energy, converged: bool, iterations: int) -> dict:
-    totals = {k: sum(c[k] for c in counters) for k in counters[0] if k != "triangle_pairs"}
-    eps = scene.epsilon
-    worst = 0.0
-    if len(contacts.points):  # each overlap relative to its pair's reach ε_a + ε_b
-        found = (contacts.bodies, contacts.offsets, contacts.overlaps)
-        worst = float(kf.largest_overlap(*found, eps))
-    return {
-        "converged": bool(converged),
-        "picard_iterations": iterations,
-        "body_pairs": len(contacts.bodies),
-        "contacts": len(contacts.points),
-        "triangle_pairs": counters[-1]["triangle_pairs"],
-        "max_overlap": worst,
-        "elastic_energy": float(energy),
-        **totals,
-    }
-
-
-def _combined(parts: list[StepStats], dt: float, seconds: float) -> StepStats:
-    """One step's statistics from consecutive parts of it (halves or sub-steps): counters
-    summed, the state of the last part, the worst overlap."""
-    summed = ("picard_iterations", "evaluations", *SEARCH_COUNTERS, "halvings")
-    last = parts[-1]
-    return dataclasses.replace(
-        last,
-        dt=dt,
-        converged=all(p.converged for p in parts),
-        max_overlap=max(p.max_overlap for p in parts),
-        seconds=seconds,
-        travel=max(p.travel for p in parts),
-        **{k: sum(getattr(p, k) for p in parts) for k in summed},
-    )
 
 
 def _state(scene) -> tuple[np.ndarray, ...]:
