@@ -363,22 +363,10 @@ def settled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol
     each plus a floor ``atol · max(max size_f, weight)`` (times R for torques).
     ``computed``, ``mismatch`` = ``(force (n, 3), torque (n, 3))``; ``gross``,
     ``body_size``, ``radius (n,)`` float64; ``fixed (n,)`` bool."""
-    force, torque = computed
-    mismatch_f, mismatch_t = mismatch
-    n = force.shape[0]
-    largest = 0.0
-    for b in range(n):
-        if not fixed[b]:
-            largest = max(largest, _size(force, b, gross[b] + body_size[b]))
-    floor = atol * max(largest, weight)
-    for b in range(n):
-        if fixed[b]:
-            continue
-        size_f = _size(force, b, gross[b] + body_size[b])
-        size_t = _size(torque, b, radius[b] * size_f)
-        if _norm(mismatch_f, b) > tolerance * size_f + floor:
-            return False
-        if _norm(mismatch_t, b) > tolerance * size_t + floor * radius[b]:
+    sizes = (gross, body_size, radius)
+    floor = _floor(computed[0], gross, body_size, fixed, atol, weight)
+    for b in range(fixed.shape[0]):
+        if not fixed[b] and _fails(computed, mismatch, sizes, b, tolerance, floor):
             return False
     return True
 
@@ -387,28 +375,36 @@ def settled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol
 def unsettled(computed, mismatch, gross, body_size, radius, fixed, tolerance, atol, weight, out):
     """:func:`settled`'s test body by body: ``out (n,)`` bool, True for each body not
     ``fixed`` whose force or torque mismatch is beyond it; returns how many."""
-    force, torque = computed
-    mismatch_f, mismatch_t = mismatch
-    n = force.shape[0]
+    sizes = (gross, body_size, radius)
+    floor = _floor(computed[0], gross, body_size, fixed, atol, weight)
+    count = 0
+    for b in range(fixed.shape[0]):
+        out[b] = not fixed[b] and _fails(computed, mismatch, sizes, b, tolerance, floor)
+        count += out[b]
+    return count
+
+
+@njit(**JIT)
+def _floor(force, gross, body_size, fixed, atol, weight):
+    """The absolute floor of Picard's test: ``atol`` of the largest free body's force scale
+    (or of ``weight``)."""
     largest = 0.0
-    for b in range(n):
+    for b in range(force.shape[0]):
         if not fixed[b]:
             largest = max(largest, _size(force, b, gross[b] + body_size[b]))
-    floor = atol * max(largest, weight)
-    count = 0
-    for b in range(n):
-        out[b] = False
-        if fixed[b]:
-            continue
-        size_f = _size(force, b, gross[b] + body_size[b])
-        size_t = _size(torque, b, radius[b] * size_f)
-        if (
-            _norm(mismatch_f, b) > tolerance * size_f + floor
-            or _norm(mismatch_t, b) > tolerance * size_t + floor * radius[b]
-        ):
-            out[b] = True
-            count += 1
-    return count
+    return atol * max(largest, weight)
+
+
+@njit(**JIT)
+def _fails(computed, mismatch, sizes, b, tolerance, floor):
+    """Body ``b``'s force or torque mismatch is beyond Picard's test (:func:`settled`)."""
+    force, torque = computed
+    gross, body_size, radius = sizes
+    size_f = _size(force, b, gross[b] + body_size[b])
+    size_t = _size(torque, b, radius[b] * size_f)
+    if _norm(mismatch[0], b) > tolerance * size_f + floor:
+        return True
+    return _norm(mismatch[1], b) > tolerance * size_t + floor * radius[b]
 
 
 @njit(**JIT)
