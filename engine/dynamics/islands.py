@@ -40,8 +40,8 @@ def search(scene, positions, orientations, last: Searched | None = None) -> Sear
     """The multiresolution contacts of ``scene`` at ``positions``, ``orientations``; with
     ``last``, the body pairs whose two bodies have the same position and orientation (bit
     for bit) as in ``last`` keep its contacts, and only the others are searched (through
-    the pair cache's lists, which it leaves as they were: the next full search renews
-    what moved)."""
+    the pair cache's lists, which it then leaves as they were: the next whole search
+    renews what moved). A search of every pair renews the cache as any search does."""
     origins, pairs = scene.configuration(positions, orientations)
     n, k = len(positions), len(pairs)
     changed = np.ones(k, np.bool_)
@@ -51,15 +51,17 @@ def search(scene, positions, orientations, last: Searched | None = None) -> Sear
         changed = moved[pairs[:, 0]] | moved[pairs[:, 1]]
         keys = pairs[:, 0] * n + pairs[:, 1]
         before = last.contacts.bodies[:, 0] * n + last.contacts.bodies[:, 1]
-        at = np.minimum(np.searchsorted(before, keys[~changed]), max(len(before) - 1, 0))
-        if len(at) and not np.array_equal(before[at], keys[~changed]):
+        at = np.searchsorted(before, keys[~changed])
+        found_all = (at < len(before)).all() and np.array_equal(before[at], keys[~changed])
+        if not found_all:
             changed[:] = True  # an unmoved pair the last search had not: search it all
+    whole = bool(changed.all())
     triangles = np.empty(int(changed.sum()), np.int64)
     found = batched_contacts(
         scene.bank, scene.tree_index, pairs[changed], origins, orientations, scene.kernel,
-        scene.threads, scene.pair_cache, read_only=last is not None, triangle_pairs=triangles,
+        scene.threads, scene.pair_cache, read_only=not whole, triangle_pairs=triangles,
     )  # fmt: skip
-    if changed.all():
+    if whole:
         return Searched(positions.copy(), orientations.copy(), found, triangles)
     same, old = ~changed, last.contacts
     counts = np.empty(k, np.int64)

@@ -123,3 +123,24 @@ def test_the_per_body_test_is_picards():
                     frontier.append(other)
     assert len(reached) > 1  # the middle box touches its neighbours
     np.testing.assert_array_equal(np.flatnonzero(moving), sorted(reached))
+
+
+def test_a_last_search_that_lacks_an_unmoved_pair_is_searched_again_whole():
+    """Unmoved pairs take their contacts from the last search only where it has them: a
+    record without one of them (an empty one, too) gives way to a search of every pair."""
+    scene, fresh = _row(), _row()
+    x, q = scene.positions.copy(), scene.orientations.copy()
+    whole = islands.search(fresh, x, q)
+    found = whole.contacts
+    for drop in (slice(1, None), slice(0, 0)):  # the first pair missing; no pair at all
+        kept = np.arange(len(found.bodies))[drop]
+        counts = np.diff(found.offsets)[kept]
+        rows = np.concatenate([np.arange(found.offsets[i], found.offsets[i + 1]) for i in kept]
+                              + [np.zeros(0, np.int64)]).astype(np.int64)  # fmt: skip
+        partial = type(found)(found.bodies[kept], np.concatenate([[0], np.cumsum(counts)]),
+                              found.points[rows], found.normals[rows], found.overlaps[rows],
+                              found.counters)  # fmt: skip
+        last = islands.Searched(x.copy(), q.copy(), partial, whole.triangles[kept])
+        again = islands.search(scene, x, q, last)
+        _same(again.contacts, found)
+        np.testing.assert_array_equal(again.triangles, whole.triangles)
