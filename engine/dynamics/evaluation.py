@@ -166,10 +166,9 @@ def evaluate(
     else:
         matched = history.matched(contacts, x, q, scene.epsilon)
     bodies = body_terms(scene)
-    force = bodies.force.copy()
-    torque, friction_force, friction_torque = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
-    stiffness = np.zeros((len(x), 3))
-    out = (force, torque, friction_force, friction_torque, stiffness)
+    block = np.zeros((5, len(x), 3))  # one allocation: force, torque, the friction's, stiffness
+    block[0] = bodies.force
+    force, torque, friction_force, friction_torque, stiffness = out = tuple(block)
     law = scene.contact_model.parameters()
     energy = 0.0
     terms = np.zeros((len(contacts.points), kf.TERMS))
@@ -188,8 +187,7 @@ def evaluate(
                 found, state, params, parameters, out, scene.threads, kept, incidence
             )
     if len(bodies.fixed):
-        for array in (force, torque, friction_force, friction_torque):
-            array[bodies.fixed] = 0.0
+        block[:4, bodies.fixed] = 0.0
     return Evaluation(
         normal=Wrench(force, torque),
         friction=Wrench(friction_force, friction_torque),
@@ -222,6 +220,12 @@ def contact_forces(
     bodies, offsets = found.bodies, found.offsets
     if terms is None:
         terms = np.empty((len(found.points), kf.TERMS))
+    friction = law[3] > 0.0
+    if len(bodies) < 2 * _PAIRS_PER_PART and len(state[0]) < 2 * _BODIES_PER_PART:
+        # one part of each: one call (the parts' bits, no hand-off)
+        contacts = (bodies, offsets, found.points, found.normals, found.overlaps)
+        incidence = incidence or _incidence(bodies, len(state[0]))
+        return kf.contact_wrench(contacts, state, params, law, incidence, friction, terms, out)
 
     def terms_part(first: int, last: int) -> None:
         kf.contact_terms(
@@ -231,7 +235,6 @@ def contact_forces(
 
     in_parts(threads, len(bodies), terms_part, least=_PAIRS_PER_PART)
     starts, entries = incidence or _incidence(bodies, len(state[0]))
-    friction = law[3] > 0.0
 
     def bodies_part(first: int, last: int) -> None:
         kf.apply_terms(

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.dynamics.bodies import body_terms
 from engine.dynamics.evaluation import Evaluation, Wrench
 from engine.kernels.dynamics import linearized as kl
 from engine.kernels.dynamics import motion as kd
@@ -48,37 +47,36 @@ class Linearization:
         self.inertia = np.empty((len(x), 3, 3))
         kd.world_inertias(q, scene.inertia, self.free, self.inertia)
         self.velocity = np.concatenate([start[2], start[3]], axis=1)
-        self.fixed_rows = body_terms(scene).fixed
 
     def predicted(self, evaluation: Evaluation) -> Wrench:
         """The applied forces of the first iteration from the start's ``evaluation``."""
         total = _stacked(evaluation.normal.plus(evaluation.friction))
         drift = self._product(evaluation, self.velocity, 1.0, 0.0)
         target = total - self.h * drift
-        return self._corrected(evaluation, target, self.h * target)
+        zero = np.zeros((len(target), 3))
+        computed = Wrench(np.ascontiguousarray(target[:, :3]), np.ascontiguousarray(target[:, 3:]))
+        return self._corrected(evaluation, computed, Wrench(zero, zero))
 
-    def corrected(self, evaluation: Evaluation, applied: Wrench) -> Wrench:
-        """The next applied forces after ``applied`` gave the guess of ``evaluation``."""
-        total = _stacked(evaluation.normal.plus(evaluation.friction))
-        return self._corrected(evaluation, total, self.h * (total - _stacked(applied)))
+    def corrected(self, evaluation: Evaluation, applied: Wrench, total: Wrench | None = None
+                  ) -> Wrench:  # fmt: skip
+        """The next applied forces after ``applied`` gave the guess of ``evaluation``
+        (``total``: its normal plus friction forces, if the caller has them)."""
+        if total is None:
+            total = evaluation.normal.plus(evaluation.friction)
+        return self._corrected(evaluation, total, applied)
 
-    def _corrected(self, evaluation: Evaluation, forces, rhs) -> Wrench:
+    def _corrected(self, evaluation: Evaluation, computed: Wrench, applied: Wrench) -> Wrench:
+        """F − (h·K + C)·z with z from (M + h²K + h·C)·z = h·(F − A), F ``computed``, A
+        ``applied`` (:func:`~engine.kernels.dynamics.linearized.corrected_forces`)."""
         found = evaluation.contacts
         contacts = (found.bodies, found.offsets, found.points, found.normals, evaluation.terms)
-        if not len(found.points):  # nothing to linearise: the forces are constant
-            applied = forces.copy()
-            applied[self.fixed_rows] = 0.0
-            return Wrench(
-                np.ascontiguousarray(applied[:, :3]), np.ascontiguousarray(applied[:, 3:])
-            )
-        z, change = np.empty_like(rhs), np.empty_like(rhs)
-        kl.newton_correction(
-            contacts, self.origins, self.mass, self.inertia, self.free, self.h, rhs,
-            SOLVE_TOLERANCE, SOLVE_ITERATIONS, z, change,
+        out = Wrench(np.empty_like(computed.force), np.empty_like(computed.torque))
+        kl.corrected_forces(
+            contacts, self.origins, self.mass, self.inertia, self.free, self.h,
+            (computed.force, computed.torque), (applied.force, applied.torque),
+            SOLVE_TOLERANCE, SOLVE_ITERATIONS, (out.force, out.torque),
         )  # fmt: skip
-        applied = forces - change
-        applied[self.fixed_rows] = 0.0
-        return Wrench(np.ascontiguousarray(applied[:, :3]), np.ascontiguousarray(applied[:, 3:]))
+        return out
 
     def _product(self, evaluation: Evaluation, z, w_k: float, w_c: float) -> np.ndarray:
         """(w_k·K + w_c·C)·z, ``(n, 6)`` float64."""

@@ -291,15 +291,20 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
         forceless = forceless and not stiffness.any()
         computed = (evaluation.normal, evaluation.friction)  # indexed by NORMAL, FRICTION
         found = evaluation.contacts.counters
-        counters.append(found if warm is None and frozen is None else unsearched(found))
+        # a frozen set's counters are unsearched already
+        counters.append(found if warm is None else unsearched(found))
         total = evaluation.normal.plus(evaluation.friction)
         was_frozen = not searched  # the last iteration evaluated a frozen set
         searched = frozen is None  # the forces of this configuration, not of a frozen set
         if applied is None:  # the step's start: predict its end (linearly implicit Euler)
             applied = newton.predicted(evaluation)
         else:
-            change = [c.minus(a) for c, a in zip(computed, _parts(applied, relaxed), strict=True)]
-            mismatch = change[NORMAL].plus(change[FRICTION])
+            change = None  # per part (NORMAL, FRICTION), once relaxing
+            if relaxed is None:  # Newton corrections: the total against the applied total
+                mismatch = total.minus(applied)
+            else:
+                change = [c.minus(a) for c, a in zip(computed, relaxed, strict=True)]
+                mismatch = change[NORMAL].plus(change[FRICTION])
             # body forces alone, every time: the applied forces are the computed ones exactly
             # a frozen set is solved tighter (its iterations search nothing): the search
             # then checks an answer within FROZEN_TOLERANCE of the set's own fixed point
@@ -327,7 +332,7 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             converged = settled and not changed  # multiscale: nothing unfolded either
             if converged:
                 break
-            size = float(np.linalg.norm(rx.flat(mismatch, radius)))
+            size = rx.size(mismatch, radius)
             if searched and (freezes < MAX_FREEZES or was_frozen):
                 # a new contact set (a new frozen set, or the searched iterations after the
                 # last one): the residual starts over
@@ -349,11 +354,12 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             if newton is not None and (changed or growing):
                 # not contracting (a contact-set switch) or the fronts moved: relax instead
                 newton, relaxed = None, [applied, _zero(applied)]
+                change = [computed[NORMAL].minus(applied), computed[FRICTION]]
                 beta = rx.first_weights(scene, stiffness, radius, dt)
             last_size = size
             if newton is not None:
                 anchor = applied  # the iterate the correction starts from
-                applied = _held(newton.corrected(evaluation, applied), held, hold)
+                applied = _held(newton.corrected(evaluation, applied, total), held, hold)
             else:
                 if changed:  # a front moved: the secant history no longer describes the map
                     residual = [None, None]
@@ -405,12 +411,6 @@ def _held(applied: Wrench, held: Wrench | None, hold: np.ndarray | None) -> Wren
     force, torque = applied.force.copy(), applied.torque.copy()
     force[hold], torque[hold] = held.force[hold], held.torque[hold]
     return Wrench(force, torque)
-
-
-def _parts(applied: Wrench, relaxed: list[Wrench] | None) -> list[Wrench]:
-    """The applied forces per part (NORMAL, FRICTION): the relaxed parts, or while Newton
-    corrections run, the total as the normal part (the split is the relaxation's)."""
-    return relaxed if relaxed is not None else [applied, _zero(applied)]
 
 
 def _zero(wrench: Wrench) -> Wrench:

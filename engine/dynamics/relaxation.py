@@ -20,7 +20,16 @@ from engine.dynamics.evaluation import Wrench
 from engine.kernels.dynamics import contact_forces as kf
 from engine.kernels.dynamics import motion as kd
 
-__all__ = ["aitken", "cycling", "first_weights", "flat", "settled", "switch", "unsettled"]
+__all__ = [
+    "aitken",
+    "cycling",
+    "first_weights",
+    "flat",
+    "settled",
+    "size",
+    "switch",
+    "unsettled",
+]
 
 BETA_MAX = 1.5
 BETA_MIN = 0.01
@@ -31,6 +40,12 @@ def flat(wrench: Wrench, radius: np.ndarray) -> np.ndarray:
     """(6n,) float64: the forces and the torques over the lever ``radius (n,)``, one
     vector (torques made force-like)."""
     return np.concatenate([wrench.force.ravel(), (wrench.torque / radius[:, None]).ravel()])
+
+
+def size(wrench: Wrench, radius: np.ndarray) -> float:
+    """The Euclidean norm of :func:`flat` of ``wrench``, summed in index order by one kernel
+    pass (no temporaries, no BLAS)."""
+    return float(kd.flat_norm(wrench.force, wrench.torque, radius))
 
 
 def aitken(beta: float, previous, current) -> float:

@@ -295,6 +295,21 @@ def _pushed(force, moment, r, sign, x0, x1, x2):
     )
 
 
+@njit(**JIT)
+def contact_wrench(contacts, state, params, law, incidence, friction, terms, out):
+    """:func:`contact_terms` of every pair, then :func:`apply_terms` of every body, in one
+    call (a small scene: no split, no hand-off); returns :func:`elastic_energy`.
+    ``contacts = (bodies, offsets, points, normals, overlaps)``, ``incidence = (starts,
+    entries)`` (:func:`incidence`), the rest as those kernels take them."""
+    bodies, offsets, points, normals, overlaps = contacts
+    contact_terms(bodies, offsets, points, normals, overlaps, state, params, law, 0,
+                  bodies.shape[0], terms)  # fmt: skip
+    starts, entries = incidence
+    apply_terms(offsets, points, state[3], terms, starts, entries, friction, 0,
+                starts.shape[0] - 1, out)  # fmt: skip
+    return elastic_energy(terms)
+
+
 @njit(**EXACT_JIT)
 def elastic_energy(terms):
     """The summed elastic energy of the acting contacts of ``terms (c, TERMS)``, in

@@ -356,6 +356,34 @@ def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance,
 
 
 @njit(**JIT)
+def corrected_forces(contacts, origins, mass, inertia, free, h, computed, applied, tolerance,
+                     most, out):  # fmt: skip
+    """The next applied forces of a Newton correction, in one call: with F the ``computed``
+    and A the ``applied`` forces (each ``(force, torque)``, ``(n, 3)`` float64), z solves
+    (M + h²K + h·C)·z = h·(F − A) (:func:`newton_correction`) and ``out = (force, torque)``
+    receives F − (h·K + C)·z, 0 on bodies not ``free``. ``applied`` may be ``computed``'s
+    zeros (a prediction: the right-hand side is h·F). Returns the solve's iterations."""
+    n = mass.shape[0]
+    forces, rhs = np.empty((n, 6)), np.empty((n, 6))
+    for b in range(n):
+        for i in range(3):
+            forces[b, i], forces[b, 3 + i] = computed[0][b, i], computed[1][b, i]
+            rhs[b, i] = h * (forces[b, i] - applied[0][b, i])
+            rhs[b, 3 + i] = h * (forces[b, 3 + i] - applied[1][b, i])
+    z, change = np.empty((n, 6)), np.zeros((n, 6))
+    taken = 0
+    if contacts[2].shape[0] > 0:  # else nothing to linearise: the forces are constant
+        taken = newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance,
+                                  most, z, change)  # fmt: skip
+    force, torque = out
+    for b in range(n):
+        for i in range(3):
+            force[b, i] = forces[b, i] - change[b, i] if free[b] else 0.0
+            torque[b, i] = forces[b, 3 + i] - change[b, 3 + i] if free[b] else 0.0
+    return taken
+
+
+@njit(**JIT)
 def _bicgstab(diagonal, coupling, bodies, active, factors, pivots, free, r, start, tolerance,
               most, z):  # fmt: skip
     """BiCGSTAB on the blocks from ``r`` (the right-hand side, norm ``start`` > 0) and

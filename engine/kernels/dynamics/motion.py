@@ -257,6 +257,21 @@ def relaxation_products(previous, current, out):
 
 
 @njit(**JIT)
+def flat_norm(force, torque, radius):
+    """√(Σ|F_i|² + Σ|τ_i/R_i|²) of ``force``, ``torque (n, 3)`` and levers ``radius (n,)``
+    float64: the norm of the forces and the torques made force-like, in index order."""
+    total = 0.0
+    for b in range(force.shape[0]):
+        for i in range(3):
+            total += force[b, i] * force[b, i]
+    for b in range(torque.shape[0]):
+        for i in range(3):
+            t = torque[b, i] / radius[b]
+            total += t * t
+    return np.sqrt(total)
+
+
+@njit(**JIT)
 def moved_contacts(bodies, offsets, found, reach, before, after, out):
     """Contacts found at the configuration ``before`` carried rigidly to ``after``: each
     contact's point moves with body A and with body B (``p_a = R_a R_a⁰ᵀ (p − x_a⁰) + x_a``,

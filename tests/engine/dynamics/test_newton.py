@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from engine import PaperSpring, Scene, shapes
-from engine.dynamics.evaluation import evaluate
+from engine.dynamics.evaluation import Wrench, evaluate
 from engine.dynamics.newton import Linearization, _stacked
 from engine.kernels.dynamics import linearized as kl
 
@@ -276,3 +276,34 @@ def test_the_world_inertias_are_the_body_tensors_turned():
     expected = np.einsum("bij,bjk,blk->bil", rot, inertia, rot)
     np.testing.assert_allclose(out[free], expected[free], rtol=1e-13, atol=1e-13)
     assert not out[~free].any()
+
+
+def test_a_correction_in_one_call_is_the_solve_of_its_residual():
+    """``Linearization.corrected`` (one kernel call) gives F − (h·K + C)·z with z the solve of
+    h·(F − A), and 0 on the fixed plane; a prediction solves h·F."""
+    scene = stack()
+    state = (scene.positions, scene.orientations, scene.velocities, scene.angular_velocities)
+    evaluation = evaluate(scene, state, scene.positions, Flat(scene))
+    h = 1e-3
+    lin = Linearization(scene, state, h)
+    n = len(scene)
+    found = evaluation.contacts
+    contacts = (found.bodies, found.offsets, found.points, found.normals, evaluation.terms)
+    total = _stacked(evaluation.normal.plus(evaluation.friction))
+    rng = np.random.default_rng(11)
+    applied = total + rng.normal(scale=np.abs(total).max() * 0.1, size=(n, 6))
+    applied_wrench = Wrench(applied[:, :3].copy(), applied[:, 3:].copy())
+    for given, rhs_forces in ((applied_wrench, applied), (None, np.zeros((n, 6)))):
+        if given is None:  # the prediction's form: F against zero applied forces
+            zero = np.zeros((n, 3))
+            got = lin._corrected(evaluation, evaluation.normal.plus(evaluation.friction),
+                                 Wrench(zero, zero))  # fmt: skip
+        else:
+            got = lin.corrected(evaluation, given)
+        z, change = np.empty((n, 6)), np.empty((n, 6))
+        kl.newton_correction(contacts, lin.origins, lin.mass, lin.inertia, lin.free, h,
+                             h * (total - rhs_forces), 1e-3, 100, z, change)  # fmt: skip
+        expected = total - change
+        expected[~lin.free] = 0.0
+        np.testing.assert_array_equal(_stacked(got), expected)
+        assert not _stacked(got)[~lin.free].any() and lin.free.sum() == 2

@@ -16,6 +16,7 @@ from engine.dynamics.relaxation import (
     first_weights,
     flat,
     settled,
+    size,
     switch,
 )
 
@@ -28,6 +29,14 @@ def test_flat_puts_forces_then_torques_over_their_levers():
     np.testing.assert_array_equal(
         got, np.concatenate([force.ravel(), (torque / radius[:, None]).ravel()])
     )
+
+
+def test_size_is_the_norm_of_flat():
+    rng = np.random.default_rng(2)
+    wrench = Wrench(rng.normal(size=(7, 3)), rng.normal(size=(7, 3)))
+    radius = rng.uniform(0.1, 2.0, 7)
+    assert size(wrench, radius) == pytest.approx(np.linalg.norm(flat(wrench, radius)), rel=1e-14)
+    assert size(Wrench(np.zeros((0, 3)), np.zeros((0, 3))), np.zeros(0)) == 0.0
 
 
 @pytest.mark.parametrize("beta", [0.005, 0.3, 1.0, 3.0])
