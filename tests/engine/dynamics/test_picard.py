@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-from engine import HertzSpring, InvalidArgumentError, PaperSpring, Scene, TunnellingWarning, shapes
+from engine import InvalidArgumentError, PaperSpring, Scene, TunnellingWarning, shapes
 from engine.dynamics.picard import travel
 
 BALL = shapes.icosphere(2, radius=0.5)  # 320 faces
