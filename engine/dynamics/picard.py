@@ -324,8 +324,12 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                 None if searched else hold,
             )  # fmt: skip
             # within the tolerance itself on a frozen set: one more correction, then the search
-            loose = not (settled or searched) and tighter < FROZEN_CHECK_WITHIN and rx.settled(
-                scene, total, mismatch, stiffness[:, 2], radius, FROZEN_CHECK_WITHIN, hold
+            loose = (
+                not (settled or searched)
+                and tighter < FROZEN_CHECK_WITHIN
+                and rx.settled(
+                    scene, total, mismatch, stiffness[:, 2], radius, FROZEN_CHECK_WITHIN, hold
+                )
             )
             if searched:
                 recent = [] if changed else [*recent[-5:], total]
