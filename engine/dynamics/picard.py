@@ -337,7 +337,10 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
                     settled = rx.switch(scene, recent, applied, stiffness[:, 2], radius)
                 cycle = not settled and freezes < MAX_FREEZES
                 if cycle and rx.cycling(scene, recent, stiffness[:, 2], radius):
-                    freezes = MAX_FREEZES  # on a switch: the searched iterations resolve it
+                    # on a switch: settled where the frozen sets' answer lies between its
+                    # two sides, else the searched iterations resolve it
+                    freezes = MAX_FREEZES
+                    settled = rx.settled_cycle(scene, recent, applied, stiffness[:, 2], radius)
                 if not settled and by_island and not changed:
                     failing = rx.unsettled(scene, total, mismatch, stiffness[:, 2], radius)
                     hold = ~scene.fixed & ~islands.moving(scene, evaluation, failing)

@@ -26,6 +26,7 @@ __all__ = [
     "first_weights",
     "flat",
     "settled",
+    "settled_cycle",
     "size",
     "switch",
     "unsettled",
@@ -147,7 +148,27 @@ def switch(scene, recent, applied, gross, radius) -> bool:
     first_b = side_b[0]
     if not all(settled(scene, first_b, r.minus(first_b), gross, radius) for r in side_b):
         return False
-    a, b = mean(side_a), mean(side_b)
+    return _on_segment(scene, mean(side_a), mean(side_b), applied, gross, radius)
+
+
+def settled_cycle(scene, recent, applied, gross, radius) -> bool:
+    """Settled on a switch that frozen contact sets found: the last three computed totals
+    ``recent`` go from A to B and back to A (:func:`cycling`: three searches, each of the
+    configuration a frozen set settled at, the middle one on the other side), and the
+    applied totals lie within the tolerance of the segment from A (the mean of the two) to
+    B. The same acceptance as :func:`switch`, whose cycle of searched iterations needs each
+    side twice: frozen sets that settle on either side of the switch and find the other
+    are that evidence already."""
+    if not cycling(scene, recent, gross, radius):
+        return False
+    a, b, again = (Wrench(*r) for r in recent[-3:])
+    applied = Wrench(*applied)
+    return _on_segment(scene, mean([a, again]), b, applied, gross, radius)
+
+
+def _on_segment(scene, a: Wrench, b: Wrench, applied: Wrench, gross, radius) -> bool:
+    """``applied`` within the Picard tolerance (:func:`settled`) of the nearest point of the
+    segment from ``a`` to ``b`` (one weight for the whole scene)."""
     step_ab = b.minus(a)
     span, offset = flat(step_ab, radius), flat(applied.minus(a), radius)
     t = float(np.clip(offset @ span / (span @ span), 0.0, 1.0)) if span @ span > 0 else 0.0

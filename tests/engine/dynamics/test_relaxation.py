@@ -16,6 +16,7 @@ from engine.dynamics.relaxation import (
     first_weights,
     flat,
     settled,
+    settled_cycle,
     size,
     switch,
 )
@@ -142,3 +143,21 @@ def test_a_cycle_of_contact_sets_is_a_to_b_and_back():
     assert not cycling(scene, [b, a], gross, radius)  # too few
     c = (b[0] + 2.0 * (b[0] - a[0]), b[1])
     assert not cycling(scene, [a, b, c], gross, radius)  # three states
+
+
+def test_a_cycle_of_frozen_sets_settles_between_its_two_sides():
+    """``settled_cycle``: A, B and back to A (three searches) with the applied forces on
+    the segment from A to B is settled; applied forces off it, a transition, or three
+    states are not."""
+    scene = _stack()
+    a, b = _two_states(scene, np.random.default_rng(7))
+    gross, radius = np.full(len(scene), 9.81), np.ones(len(scene))
+    middle = tuple(0.4 * x + 0.6 * y for x, y in zip(a, b, strict=True))
+    assert settled_cycle(scene, [a, b, a], middle, gross, radius)
+    assert settled_cycle(scene, [b, a, b, a], b, gross, radius)  # the last three; an end
+    off = (middle[0] + 3.0, middle[1])
+    assert not settled_cycle(scene, [a, b, a], off, gross, radius)
+    assert not settled_cycle(scene, [a, a, b], middle, gross, radius)  # a transition
+    c = (b[0] + 2.0 * (b[0] - a[0]), b[1])
+    assert not settled_cycle(scene, [a, b, c], middle, gross, radius)  # three states
+    assert not settled_cycle(scene, [b, a], middle, gross, radius)  # too few
