@@ -118,8 +118,10 @@ class ContactHistory:
         releasing = values[:, kf.HISTORY_RELEASING] != 0.0
         if start is not None:
             releasing = releasing | (start[:, kf.HISTORY_RELEASING] != 0.0)
-        pair = np.repeat(np.arange(len(contacts.bodies)), np.diff(contacts.offsets))
-        governed = np.unique(contacts.bodies[pair[releasing]]).astype(np.int64)
+        governed = np.zeros(0, np.int64)
+        if releasing.any():  # rarely: only after the state was set from outside
+            pair = np.repeat(np.arange(len(contacts.bodies)), np.diff(contacts.offsets))
+            governed = np.unique(contacts.bodies[pair[releasing]]).astype(np.int64)
         count = len(positions)
         local = np.empty((len(contacts.points), 3))
         kh.local_points(contacts.bodies, contacts.offsets, contacts.points, positions,

@@ -91,23 +91,15 @@ class Sleep:
         :attr:`steps` steps; bodies near a moving one (broad-phase candidates) wake or
         start counting again. A body that falls asleep is at rest: its velocity and angular
         velocity become zero."""
-        free = ~scene.fixed
-        speed = np.empty(len(radius))
-        kd.surface_speeds(scene.velocities, scene.angular_velocities, radius, speed)
-        awake = free & ~self.asleep
-        resting = awake & (speed < self.speed)
-        moving = awake & ~resting
-        self.rest[resting] += 1
-        self.rest[~resting] = 0
-        if moving.any() and (self.asleep.any() or resting.any()):
+        moving = np.empty(len(radius), np.bool_)
+        any_moving, others = kd.rest_counts(
+            scene.velocities, scene.angular_velocities, radius, scene.fixed, self.asleep,
+            self.speed, self.rest, moving,
+        )  # fmt: skip
+        if any_moving and others:
             # bodies near a moving one: sleepers wake, resting ones keep counting from zero
             _, pairs = scene.configuration(scene.positions, scene.orientations)
-            a, b = pairs[:, 0], pairs[:, 1]
-            near = np.concatenate([a[moving[b]], b[moving[a]]])
-            woken = near[self.asleep[near]]
-            self.asleep[woken] = False
-            self.rest[near] = 0
-        falling = free & ~self.asleep & (self.rest >= self.steps)
-        self.asleep |= falling
-        scene.velocities[falling] = 0.0  # asleep is at rest (frozen() zeroes them anyway)
-        scene.angular_velocities[falling] = 0.0
+            kd.wake_near(pairs, moving, self.asleep, self.rest)
+        # asleep is at rest (frozen() zeroes them anyway)
+        kd.fall_asleep(scene.fixed, self.asleep, self.rest, self.steps, scene.velocities,
+                       scene.angular_velocities)  # fmt: skip

@@ -71,6 +71,52 @@ def surface_speeds(velocities, angular_velocities, radius, out):
 
 
 @njit(**JIT)
+def rest_counts(velocities, angular_velocities, radius, fixed, asleep, speed, rest, moving):
+    """The sleep rule's count after a step (:mod:`engine.dynamics.sleep`): an awake free
+    body whose surface speed |v| + |ω|·R is below ``speed`` has rested one step more in
+    ``rest (n,)`` int64, every other body's count is 0, and ``moving (n,)`` bool receives
+    the awake free bodies at ``speed`` or faster; ``fixed``, ``asleep (n,)`` bool, the rest
+    as :func:`surface_speeds`. Returns ``(any moving, any asleep or resting)``."""
+    any_moving, others = False, False
+    for b in range(velocities.shape[0]):
+        awake = not fixed[b] and not asleep[b]
+        resting = awake and _surface_speed(velocities, angular_velocities, radius, b) < speed
+        moving[b] = awake and not resting
+        rest[b] = rest[b] + 1 if resting else 0
+        any_moving = any_moving or moving[b]
+        others = others or asleep[b] or resting
+    return any_moving, others
+
+
+@njit(**JIT)
+def wake_near(pairs, moving, asleep, rest):
+    """Each body of a candidate pair ``pairs (k, 2)`` int64 whose other body is ``moving
+    (n,)`` bool wakes (``asleep (n,)`` bool cleared) and starts its ``rest (n,)`` int64
+    count again."""
+    for t in range(pairs.shape[0]):
+        a, b = pairs[t, 0], pairs[t, 1]
+        if moving[b]:
+            asleep[a] = False
+            rest[a] = 0
+        if moving[a]:
+            asleep[b] = False
+            rest[b] = 0
+
+
+@njit(**JIT)
+def fall_asleep(fixed, asleep, rest, steps, velocities, angular_velocities):
+    """The awake free bodies that have rested ``steps`` steps (``rest (n,)`` int64) fall
+    asleep (``asleep (n,)`` bool set), at rest: their rows of ``velocities`` and
+    ``angular_velocities (n, 3)`` float64 become 0."""
+    for b in range(fixed.shape[0]):
+        if not fixed[b] and not asleep[b] and rest[b] >= steps:
+            asleep[b] = True
+            for c in range(3):
+                velocities[b, c] = 0.0
+                angular_velocities[b, c] = 0.0
+
+
+@njit(**JIT)
 def largest_travel(velocities, angular_velocities, radius, epsilon, fixed, dt):
     """``(ratio, body)``: the largest (|v| + |ω|·R)·|dt| / ε over the bodies that are not
     ``fixed (n,)`` bool, and the first body that has it (−1 for none); arrays as

@@ -48,6 +48,49 @@ def test_resting_bodies_sleep_and_a_falling_one_wakes_what_it_hits():
     assert np.isfinite(asleep.velocities).all()
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_an_update_follows_the_rule_written_out(seed):
+    """``Sleep.update`` on random speeds, sleep states and counts: an awake free body below
+    the speed rests one step more, every other body's count is 0; where something moves,
+    the bodies of its candidate pairs wake and count from 0; those that rested ``steps``
+    steps fall asleep at rest. Compared with the rule in numpy."""
+    rng = np.random.default_rng(seed)
+    scene = Scene(contact_model=PaperSpring(damping=0.5, friction=0.5))
+    scene.add_plane(size=12.0, divisions=4, epsilon=0.01)
+    for x in range(6):  # side by side: neighbours are candidate pairs
+        scene.add_body(shapes.box(), position=(1.02 * x, 0.0, 0.52), epsilon=0.01)
+    n = len(scene)
+    sleep = Sleep(speed=1e-2, steps=3)
+    sleep.wake_all(n)
+    sleep.asleep[1:] = rng.random(n - 1) < 0.4
+    sleep.rest[:] = rng.integers(0, 4, n)
+    scene.velocities[:] = rng.normal(scale=0.01, size=(n, 3)) * (rng.random((n, 1)) < 0.5)
+    scene.angular_velocities[:] = rng.normal(scale=0.005, size=(n, 3))
+    radius = np.full(n, 0.9)
+    # the rule, written out
+    free = ~scene.fixed
+    speed = np.linalg.norm(scene.velocities, axis=1)
+    speed += np.linalg.norm(scene.angular_velocities, axis=1) * radius
+    asleep, rest = sleep.asleep.copy(), sleep.rest.copy()
+    awake = free & ~asleep
+    resting = awake & (speed < sleep.speed)
+    moving = awake & ~resting
+    rest = np.where(resting, rest + 1, 0)
+    if moving.any() and (asleep.any() or resting.any()):
+        _, pairs = scene.configuration(scene.positions, scene.orientations)
+        a, b = pairs[:, 0], pairs[:, 1]
+        near = np.concatenate([a[moving[b]], b[moving[a]]])
+        asleep[near], rest[near] = False, 0
+    falling = free & ~asleep & (rest >= sleep.steps)
+    asleep |= falling
+    velocities = np.where(falling[:, None], 0.0, scene.velocities)
+    sleep.update(scene, radius)
+    np.testing.assert_array_equal(sleep.asleep, asleep)
+    np.testing.assert_array_equal(sleep.rest, rest)
+    np.testing.assert_array_equal(scene.velocities, velocities)
+    assert not scene.angular_velocities[falling].any()
+
+
 def test_anything_from_outside_wakes_every_body():
     scene = _row_of_boxes(Sleep(steps=5))
     lifted = scene.positions.copy()
