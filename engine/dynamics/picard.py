@@ -132,7 +132,8 @@ FROZEN_CHECK_WITHIN = 1.0
 """… but once its residual is within this fraction of ``picard_tolerance``, one more Newton
 correction and the search follow (no frozen evaluation confirms the correction: it squares
 a small residual, 0.3 of the tolerance became 0.001 on the settled 48-object pile; 0 turns
-this off) …"""
+this off; 100 took 9 % less time over sixteen pile seeds, but one seed's largest overlap
+reached 0.266 of the reach) …"""
 FROZEN_TIGHT_ITERATIONS = 4
 """… within its first this many iterations, and after them at the tolerance itself (a set
 whose springs flip between sticking and sliding need not be solved so far)."""
