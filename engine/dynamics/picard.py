@@ -327,6 +327,7 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
             # within the tolerance itself on a frozen set: one more correction, then the search
             loose = (
                 not (settled or searched)
+                and newton is not None
                 and tighter < FROZEN_CHECK_WITHIN
                 and rx.settled(
                     scene, total, mismatch, stiffness[:, 2], radius, FROZEN_CHECK_WITHIN, hold
