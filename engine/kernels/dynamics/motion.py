@@ -63,20 +63,13 @@ def placed_bodies(positions, orientations, centers, spheres, limit, out):
 
 
 @njit(**JIT)
-def surface_speeds(velocities, angular_velocities, radius, out):
-    """``out (n,)`` float64: each body's largest surface speed bound |v| + |ω|·R for
-    ``velocities``, ``angular_velocities (n, 3)`` and bounding ``radius (n,)`` float64."""
-    for b in range(velocities.shape[0]):
-        out[b] = _surface_speed(velocities, angular_velocities, radius, b)
-
-
-@njit(**JIT)
 def rest_counts(velocities, angular_velocities, radius, fixed, asleep, speed, rest, moving):
     """The sleep rule's count after a step (:mod:`engine.dynamics.sleep`): an awake free
     body whose surface speed |v| + |ω|·R is below ``speed`` has rested one step more in
     ``rest (n,)`` int64, every other body's count is 0, and ``moving (n,)`` bool receives
-    the awake free bodies at ``speed`` or faster; ``fixed``, ``asleep (n,)`` bool, the rest
-    as :func:`surface_speeds`. Returns ``(any moving, any asleep or resting)``."""
+    the awake free bodies at ``speed`` or faster; ``velocities``, ``angular_velocities
+    (n, 3)``, bounding ``radius (n,)`` float64, ``fixed``, ``asleep (n,)`` bool. Returns
+    ``(any moving, any asleep or resting)``."""
     any_moving, others = False, False
     for b in range(velocities.shape[0]):
         awake = not fixed[b] and not asleep[b]
@@ -120,7 +113,7 @@ def fall_asleep(fixed, asleep, rest, steps, velocities, angular_velocities):
 def largest_travel(velocities, angular_velocities, radius, epsilon, fixed, dt):
     """``(ratio, body)``: the largest (|v| + |ω|·R)·|dt| / ε over the bodies that are not
     ``fixed (n,)`` bool, and the first body that has it (−1 for none); arrays as
-    :func:`surface_speeds`, ``epsilon (n,)`` float64."""
+    :func:`rest_counts`, ``epsilon (n,)`` float64."""
     largest, body = 0.0, -1
     for b in range(velocities.shape[0]):
         if fixed[b]:
@@ -133,7 +126,7 @@ def largest_travel(velocities, angular_velocities, radius, epsilon, fixed, dt):
 
 @njit(**BORROW, forceinline=True)
 def _surface_speed(velocities, angular_velocities, radius, b):
-    """|v| + |ω|·R of body ``b`` (arrays as :func:`surface_speeds`)."""
+    """|v| + |ω|·R of body ``b`` (arrays as :func:`rest_counts`)."""
     v0, v1, v2 = velocities[b, 0], velocities[b, 1], velocities[b, 2]
     w0, w1, w2 = angular_velocities[b, 0], angular_velocities[b, 1], angular_velocities[b, 2]
     linear = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
