@@ -98,4 +98,6 @@ def moving(scene, evaluation, failing: np.ndarray) -> np.ndarray:
     found, free = evaluation.contacts, ~scene.fixed
     labels = np.empty(len(free), np.int64)
     kf.contact_islands(found.bodies, found.offsets, evaluation.terms, free, labels)
-    return free & np.isin(labels, labels[failing])
+    marked = np.zeros(len(free), np.bool_)  # the failing bodies' islands (labels are bodies)
+    marked[labels[failing]] = True
+    return free & marked[labels]

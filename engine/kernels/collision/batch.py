@@ -20,8 +20,13 @@ import numpy as np
 from numba import njit
 
 from engine.kernels.collision.contact_merge import contact_kernel
-from engine.kernels.collision.pair_lists import by_faces, listed_contacts, reference_distances
-from engine.kernels.collision.traversal import query_kernel
+from engine.kernels.collision.pair_lists import (
+    by_faces,
+    listed_contacts,
+    listed_scratch,
+    reference_distances,
+)
+from engine.kernels.collision.traversal import query_kernel, roots_apart
 from engine.kernels.geometry.rotation import rotation_entries
 from engine.kernels.geometry.triangle_batch import (
     ITERATIVE,
@@ -31,7 +36,6 @@ from engine.kernels.geometry.triangle_batch import (
     STAT_PAIRS,
     STAT_SPHERES,
     listed_workspace,
-    result_buffers,
 )
 from engine.kernels.jit import EXACT_BORROW, EXACT_JIT, JIT
 
@@ -293,10 +297,14 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     # the "aligned" grid the pairs were 256 MB an evaluation, and ``contact_kernel``, which
     # wrote them, 43 % of a steady step's samples).
     room = 64 if params.keep_pairs else 0
+    most = 0  # the longest list: listed queries share buffers of its size
     for t in range(k):
         e = lists.slot[start + t] if lists.slot.shape[0] > 0 else -1
-        if e >= 0 and params.keep_pairs:
-            room += lists.offsets[e + 1] - lists.offsets[e]
+        if e >= 0:
+            size = lists.offsets[e + 1] - lists.offsets[e]
+            most = max(most, size)
+            if params.keep_pairs:
+                room += size
     pairs = np.empty((room, 2), np.int64)
     near_out = np.empty((64, 2), np.int64)
     near_distances = np.empty(64)
@@ -306,7 +314,9 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
     stats = np.zeros(N_STATS, np.int64)
     local = np.full(max(1, int(trees.node_count.max())), -1, np.int64)  # listed_contacts'
     buffers = listed_workspace(bank.coords)
-    found = result_buffers(256, bank.coords)
+    listed_buffers = listed_scratch(most, bank.coords)
+    found = listed_buffers[11]
+    face_b = listed_buffers[9]
     for t in range(k):
         q = start + t
         ta, tb = queries.tree_a[q], queries.tree_b[q]
@@ -341,7 +351,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             rotations[t], shifts[t] = lists.rotations[e], lists.shifts[e]
         elif listed:
             l0, l1 = lists.offsets[e], lists.offsets[e + 1]
-            found, n, face_b = listed_contacts(
+            n = listed_contacts(
                 bank,
                 (a0, a1, b0),
                 (rotation, shift),
@@ -349,7 +359,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 lists.distances[l0:l1],
                 drift + 2.0 * margin,
                 params.leaf,
-                (local, buffers, found),
+                (local, buffers, listed_buffers),
                 stats,
             )
             depth, unfoldings, n1 = 0, 0, n0  # a kept list stays put
@@ -369,6 +379,18 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                     found, n, face_a, face_b, contact[0], contact[1], contact[2], setup, out
                 )
             p1, c1 = p0 + m, c0 + c
+        elif roots_apart(
+            bank.spheres[a0:a1],
+            bank.boxes[a0:a1],
+            bank.spheres[b0:b1],
+            bank.boxes[b0:b1],
+            rotation,
+            shift,
+            margin + 2.0 * (0.5 * reach if skin > 0.0 else 0.0),
+        ):  # the traversal's first test, without its set-up: nothing near, an empty list
+            stats[STAT_SPHERES] += 1
+            depth, unfoldings, n1, p1, c1 = 0, 0, n0, p0, c0
+            rotations[t], shifts[t] = rotation, shift
         else:
             body_a = (  # query_kernel's body layout; A in the query precision
                 bank.coords[a0:a1],

@@ -42,12 +42,39 @@ pole-to-pole pair (1,296 listed pairs; ``benchmarks/grid_pairs.py``): 32 pairs 4
 
 
 @njit(**JIT)
+def listed_scratch(most, like):
+    """Buffers of :func:`listed_contacts` for lists of up to ``most`` pairs, made once per
+    batch of queries: ``(kept (most, 2), sure_a, sure_b, moving (most,)`` int64, B's moved
+    rows ``master_coords (most, 9), master_frames (most, 14)`` float64 and ``coords (most,
+    9), frames (most, 14), eps (most,)`` in the precision of ``like``, ``face (most,)``
+    int32, ``index (most,)`` int64 = 0, 1, …, and the result buffers
+    (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) with room for
+    ``most`` contacts)``. With them a listed query allocates nothing, and takes no
+    reference counts (:func:`listed_contacts` is a borrowing helper)."""
+    most = max(most, 1)
+    return (
+        np.empty((most, 2), np.int64),
+        np.empty(most, np.int64),
+        np.empty(most, np.int64),
+        np.empty(most, np.int64),
+        np.empty((most, 9)),
+        np.empty((most, 14)),
+        np.empty((most, 9), like.dtype),
+        np.empty((most, 14), like.dtype),
+        np.empty(most, like.dtype),
+        np.empty(most, np.int32),
+        np.arange(most),
+        result_buffers(most, like),
+    )
+
+
+@njit(**BORROW)
 def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scratch, stats):
     """The leaf pairs in contact among a query's listed ``near (m, 2)`` int64 pairs (local
-    leaf rows of A, of B); returns ``(found, n, face_b)``: the first ``n`` rows of
-    ``found`` (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`, maybe
-    grown) as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` reports them,
-    B's rows renumbered, and ``face_b`` the face of each renumbered row.
+    leaf rows of A, of B); returns ``n``: the first ``n`` rows of ``scratch``'s result
+    buffers as :func:`~engine.kernels.geometry.triangle_batch.listed_kernel` reports
+    them, B's rows renumbered, and the face of each renumbered row in ``scratch``'s
+    ``face``.
 
     ``rows = (a0, a1, b0)``: A's rows in ``bank``, B's first row; ``pose`` moves B into
     A's frame; the exact distance of each pair at the list's reference pose is
@@ -62,18 +89,16 @@ def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scrat
     ``listed_kernel`` then records with ``certified_points``' distance and points and status
     ``CONTACT``: it gets exactly that, without the iterative kernel's decision, appended
     after the others (:func:`contact_kernel` orders pairs by their faces, so the
-    contacts do not depend on the order of ``found``). ``scratch = (local, buffers,
-    found)``: ``local`` (≥ B's node count) int64 all −1 (left so), the listed workspace
-    and the result buffers."""
+    contacts do not depend on the order of the results). ``scratch = (local, buffers,
+    listed)``: ``local`` (≥ B's node count) int64 all −1 (left so), the listed workspace
+    and :func:`listed_scratch` for at least ``m`` pairs."""
     a0, a1, b0 = rows
     rotation, shift = pose
-    local, buffers, found = scratch
+    local, buffers, listed = scratch
+    kept, sure_a, sure_b, moving = listed[0], listed[1], listed[2], listed[3]
+    found = listed[11]
     coords_a, frames_a = bank.coords[a0:a1], bank.frames[a0:a1]
     m = near.shape[0]
-    kept = np.empty((m, 2), np.int64)
-    sure_a = np.empty(m, np.int64)
-    sure_b = np.empty(m, np.int64)
-    moving = np.empty(m, np.int64)
     shortcut = leaf_params[0] != ITERATIVE
     mk, ms, u = ZERO, ZERO, ZERO
     for t in range(m):
@@ -93,20 +118,19 @@ def listed_contacts(bank, rows, pose, near, distances, slack, leaf_params, scrat
         else:
             kept[mk, 0], kept[mk, 1] = i, local[j]
             mk += 1
-    if mk + ms == 0:  # no listed pair close enough now
-        return found, 0, np.empty(0, np.int32)
-    coords_b, frames_b, eps_b, face_b = _packed(bank, b0, moving[:u], rotation, shift, coords_a)
     for r in range(u):
         local[moving[r]] = -1
-    if found[0].shape[0] < mk + ms:
-        found = result_buffers(max(mk + ms, 2 * found[0].shape[0]), coords_a)
+    if mk + ms == 0:  # no listed pair close enough now
+        return ZERO
+    coords_b, frames_b, eps_b = listed[6], listed[7], listed[8]
+    _packed(bank, b0, moving, u, rotation, shift, listed)
     rm = (coords_a, frames_a, coords_b, frames_b)
     eps_a = bank.epsilon_query[a0:a1]
     n = listed_kernel(rm, eps_a, eps_b, kept, ZERO, mk, leaf_params, buffers, found, ZERO, stats)
     if ms > 0:
         stats[STAT_PAIRS] += ms
         n = _sure_contacts(rm, sure_a, sure_b, ms, leaf_params[3], buffers[0], found, n)
-    return found, n, face_b
+    return n
 
 
 @njit(**BORROW)
@@ -192,7 +216,9 @@ def reference_distances(bank, rows, pose, near, one, scratch, out):
             moving[u] = j
             u += 1
         index_b[t] = local[j]
-    coords_b, frames_b, _, _ = _packed(bank, b0, moving[:u], pose[0], pose[1], coords_a)
+    listed = listed_scratch(u, bank.coords)
+    _packed(bank, b0, moving, u, pose[0], pose[1], listed)
+    coords_b, frames_b = listed[6], listed[7]
     for r in range(u):
         local[moving[r]] = -1
     ga, gfa, gb, gfb = buffers[0][0], buffers[0][1], buffers[0][2], buffers[0][3]
@@ -231,17 +257,14 @@ def by_faces(near, distances, face_a, face_b, n_faces_b):
     return out, sorted_distances
 
 
-@njit(**JIT)
-def _packed(bank, b0, moving, rotation, shift, like):
-    """``(coords (u, 9), frames (u, 14), ε (u,), face (u,))``: B's rows ``b0 + moving[r]``
-    packed into row ``r`` and moved into A's frame (coordinates, frames and ε in the
-    precision of ``like``; :func:`~engine.kernels.collision.rigid.move_kernel` moves
-    each row by the same arithmetic wherever it sits)."""
-    u = moving.shape[0]
-    master_coords = np.empty((u, 9))
-    master_frames = np.empty((u, 14))
-    eps = np.empty(u, like.dtype)
-    face = np.empty(u, np.int32)
+@njit(**BORROW)
+def _packed(bank, b0, moving, u, rotation, shift, listed):
+    """B's rows ``b0 + moving[r]``, ``r < u``, packed into row ``r`` of :func:`listed_scratch`
+    ``listed`` and moved into A's frame: coordinates and frames (in the precision of its
+    buffers), ε and faces (:func:`~engine.kernels.collision.rigid.move_kernel` moves each
+    row by the same arithmetic wherever it sits)."""
+    master_coords, master_frames = listed[4], listed[5]
+    eps, face = listed[8], listed[9]
     for r in range(u):
         j = b0 + moving[r]
         for c in range(9):
@@ -250,10 +273,7 @@ def _packed(bank, b0, moving, rotation, shift, like):
             master_frames[r, c] = bank.master_frames[j, c]
         eps[r] = bank.epsilon_query[j]
         face[r] = bank.face[j]
-    coords = np.empty((u, 9), like.dtype)
-    frames = np.empty((u, 14), like.dtype)
-    move_kernel(master_coords, master_frames, np.arange(u), rotation, shift, coords, frames)
-    return coords, frames, eps, face
+    move_kernel(master_coords, master_frames, listed[10][:u], rotation, shift, listed[6], listed[7])
 
 
 @njit(**BORROW)

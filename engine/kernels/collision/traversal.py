@@ -21,9 +21,9 @@ such front for the multiscale step, whose host unfolds the hits by the same rule
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import carray, njit
 
-from engine.kernels.collision.boxes import box_set_up, place_row, separated
+from engine.kernels.collision.boxes import box_set_up, place_box, place_row, separated
 from engine.kernels.collision.contact_merge import contact_kernel
 from engine.kernels.collision.rigid import margin_kernel, move_kernel
 from engine.kernels.geometry.triangle_batch import (
@@ -35,7 +35,7 @@ from engine.kernels.geometry.triangle_batch import (
     listed_workspace,
     result_buffers,
 )
-from engine.kernels.jit import BORROW, JIT, select, sqrt
+from engine.kernels.jit import BORROW, JIT, select, sqrt, stack_buffer
 
 
 @njit(**JIT)
@@ -160,16 +160,14 @@ def traverse(
     na = coords_a.shape[0]
     nb = master_coords.shape[0]
     reach = margin + 2.0 * inflate  # added to the sum of two bounding radii
+    if roots_apart(spheres_a, boxes_a, spheres_b, boxes_b, rotation, shift, reach):
+        stats[STAT_SPHERES] += 1  # before any set-up
+        none = result_buffers(0, coords_a)
+        return ZERO, ZERO, ZERO, none, np.zeros((0, 2), np.int64), np.zeros(0), np.inf
     centres_b = np.empty((nb, 3))  # B's sphere centres in A's frame, once needed
     centred = np.zeros(nb, np.bool_)
     _centre(spheres_b, centres_b, centred, ZERO, rotation, shift)
     boxed, placed_b, placed = box_set_up(boxes_a, boxes_b, rotation, shift)
-    if _far(spheres_a, ZERO, centres_b, spheres_b, ZERO, reach) or (
-        boxed and separated(boxes_a, ZERO, placed_b, ZERO, reach)
-    ):  # before any other set-up
-        stats[STAT_SPHERES] += 1
-        none = result_buffers(0, coords_a)
-        return ZERO, ZERO, ZERO, none, np.zeros((0, 2), np.int64), np.zeros(0), np.inf
     moved = np.zeros(nb, np.bool_)  # B's node moved, its ε set
     seen_a = np.zeros(na, np.bool_)  # A's node ε set
     coords_b = np.empty((nb, 9), dtype)
@@ -307,6 +305,29 @@ def traverse(
         else:
             n = _at_true_epsilon(rm, eps_a, eps_b, near, leaf_params, buffers, found, stats)
     return depth, unfoldings, n, found, near, near_distances, closest
+
+
+@njit(**JIT)
+def roots_apart(spheres_a, boxes_a, spheres_b, boxes_b, rotation, shift, reach):
+    """The traversal's first test: the root nodes' bounding spheres, or (both bodies having
+    boxes, ``(0, 15)`` else) their boxes, are apart by more than ``reach`` with B moved
+    into A's frame by ``x ↦ rotation x + shift`` (arrays as :func:`traverse` takes them).
+    One called function, so that :func:`traverse` and a caller that tests the roots
+    before it (:func:`~engine.kernels.collision.batch.batch_kernel`: a pruned pair costs
+    no set-up) decide alike. Allocates nothing (its buffers are in its stack frame)."""
+    centre = carray(stack_buffer(3, np.float64), (1, 3))
+    centred = carray(stack_buffer(1, np.bool_), (1,))
+    centred[0] = False
+    _centre(spheres_b, centre, centred, ZERO, rotation, shift)
+    if _far(spheres_a, ZERO, centre, spheres_b, ZERO, reach):
+        return True
+    if boxes_a.shape[0] == 0 or boxes_b.shape[0] == 0:
+        return False
+    placed = carray(stack_buffer(15, np.float64), (1, 15))
+    done = carray(stack_buffer(1, np.bool_), (1,))
+    done[0] = False
+    place_box(boxes_b, ZERO, rotation, shift, placed, done)
+    return separated(boxes_a, ZERO, placed, ZERO, reach)
 
 
 @njit(**JIT)
