@@ -115,24 +115,31 @@ def contact_product(bodies, offsets, points, normals, terms, origins, z, w_k, w_
 
 
 @njit(**JIT)
-def system_blocks(contacts, origins, mass, inertia, h, free, diagonal, coupling):
+def system_blocks(contacts, origins, mass, inertia, h, free, active, diagonal, coupling):
     """The blocks of M + h²K + h·C (module docstring) over the free bodies: ``diagonal (n,
     6, 6)`` each free body's own (its mass, its world ``inertia (n, 3, 3)`` and Jᵀ·S·J of
     its contacts, J = [I | −[r]×], S a contact's slopes; zero for bodies not ``free``),
-    ``coupling (k, 2, 6, 6)`` each body pair's −J_aᵀ·S·J_b (``[q, 0]``: the rows of A, the
-    columns of B) and −J_bᵀ·S·J_a (``[q, 1]``: the rows of B, the columns of A) summed
-    over its contacts, zero unless both are free. ``contacts = (bodies, offsets, points,
-    normals, terms)``."""
+    ``coupling (m, 2, 6, 6)`` for each body pair ``active[t]`` (:func:`coupled_pairs`, in
+    order) its −J_aᵀ·S·J_b (``[t, 0]``: the rows of A, the columns of B) and −J_bᵀ·S·J_a
+    (``[t, 1]``: the rows of B, the columns of A) summed over its contacts. Only the
+    coupled pairs have blocks: a scene's candidate pairs are mostly apart, and zeroing
+    a block for each (173 kB on the 48-object pile) was most of a correction's time.
+    ``contacts = (bodies, offsets, points, normals, terms)``."""
     bodies, offsets, points, normals, terms = contacts
     n = mass.shape[0]
     diagonal[:] = 0.0
-    coupling[:] = 0.0
+    slot = 0  # the next coupled pair's row of ``coupling``
     slopes = np.empty((3, 3))
     turned_a, turned_b = np.empty((3, 3)), np.empty((3, 3))  # S·[r]× of A's and B's lever
     crossed_a, crossed_b = np.empty((3, 3)), np.empty((3, 3))  # [r]×·S
     ra, rb = np.empty(3), np.empty(3)
     for q in range(bodies.shape[0]):
         a, b = bodies[q, 0], bodies[q, 1]
+        row = -1
+        if slot < active.shape[0] and active[slot] == q:
+            row = slot
+            slot += 1
+            coupling[row] = 0.0
         if not (free[a] or free[b]):
             continue
         for c in range(offsets[q], offsets[q + 1]):
@@ -150,9 +157,9 @@ def system_blocks(contacts, origins, mass, inertia, h, free, diagonal, coupling)
                 _add_own(diagonal[a], slopes, ra, turned_a, crossed_a)
             if free[b]:
                 _add_own(diagonal[b], slopes, rb, turned_b, crossed_b)
-            if free[a] and free[b]:
-                _add_coupling(coupling[q, 0], slopes, ra, turned_b, crossed_a)
-                _add_coupling(coupling[q, 1], slopes, rb, turned_a, crossed_b)
+            if row >= 0:
+                _add_coupling(coupling[row, 0], slopes, ra, turned_b, crossed_a)
+                _add_coupling(coupling[row, 1], slopes, rb, turned_a, crossed_b)
     for body in range(n):
         if not free[body]:
             continue
@@ -227,9 +234,24 @@ def block_factors(diagonal, free, out, pivots):
 
 
 @njit(**JIT)
+def coupled_pairs(bodies, offsets, free):
+    """(m,) int64: the body pairs of ``bodies (k, 2)`` with coupling blocks in
+    :func:`system_blocks`, in order: both bodies ``free``, a contact between them (pair q
+    owns contacts ``offsets[q]:offsets[q + 1]``)."""
+    active = np.empty(bodies.shape[0], np.int64)
+    coupled = 0
+    for q in range(bodies.shape[0]):
+        if free[bodies[q, 0]] and free[bodies[q, 1]] and offsets[q + 1] > offsets[q]:
+            active[coupled] = q
+            coupled += 1
+    return active[:coupled].copy()
+
+
+@njit(**JIT)
 def _block_product(diagonal, coupling, bodies, active, z, out):
     """``out (n, 6)`` = (M + h²K + h·C)·z from :func:`system_blocks`' blocks, over the
-    body pairs ``active`` (those with coupling blocks)."""
+    body pairs ``active`` (those with coupling blocks, row t of ``coupling`` for
+    ``active[t]``)."""
     for b in range(z.shape[0]):
         for i in range(6):
             total = 0.0
@@ -239,7 +261,7 @@ def _block_product(diagonal, coupling, bodies, active, z, out):
     for t in range(active.shape[0]):
         q = active[t]
         a, b = bodies[q, 0], bodies[q, 1]
-        to_a_block, to_b_block = coupling[q, 0], coupling[q, 1]
+        to_a_block, to_b_block = coupling[t, 0], coupling[t, 1]
         for i in range(6):
             to_a, to_b = 0.0, 0.0
             for j in range(6):
@@ -318,17 +340,11 @@ def newton_correction(contacts, origins, mass, inertia, free, h, rhs, tolerance,
     where friction follows the normal force (module docstring)."""
     bodies, offsets = contacts[0], contacts[1]
     n = mass.shape[0]
-    diagonal, coupling = np.empty((n, 6, 6)), np.empty((bodies.shape[0], 2, 6, 6))
-    system_blocks(contacts, origins, mass, inertia, h, free, diagonal, coupling)
+    active = coupled_pairs(bodies, offsets, free)
+    diagonal, coupling = np.empty((n, 6, 6)), np.empty((active.shape[0], 2, 6, 6))
+    system_blocks(contacts, origins, mass, inertia, h, free, active, diagonal, coupling)
     factors, pivots = np.empty((n, 6, 6)), np.empty((n, 6), np.int64)
     block_factors(diagonal, free, factors, pivots)
-    coupled = 0  # the body pairs with coupling blocks: both free, a contact acting
-    active = np.empty(bodies.shape[0], np.int64)
-    for q in range(bodies.shape[0]):
-        if free[bodies[q, 0]] and free[bodies[q, 1]] and offsets[q + 1] > offsets[q]:
-            active[coupled] = q
-            coupled += 1
-    active = active[:coupled]
     z[:] = 0.0
     change[:] = 0.0
     r = rhs.copy()
