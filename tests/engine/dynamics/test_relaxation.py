@@ -161,3 +161,31 @@ def test_a_cycle_of_frozen_sets_settles_between_its_two_sides():
     c = (b[0] + 2.0 * (b[0] - a[0]), b[1])
     assert not settled_cycle(scene, [a, b, c], middle, gross, radius)  # three states
     assert not settled_cycle(scene, [b, a], middle, gross, radius)  # too few
+
+
+def test_two_bodies_each_on_their_own_switch_settle_body_by_body():
+    """Two bodies that each flip between two values on their own (four combinations over
+    the scene) with each one's applied forces on its own segment: settled when the bodies
+    are tested one by one (``groups``, as Picard tests them), not as one scene; a body
+    whose applied forces are off its segment is not."""
+    scene = _stack()
+    n = len(scene)
+    rng = np.random.default_rng(11)
+    base = (rng.normal(size=(n, 3)) * 5.0, rng.normal(size=(n, 3)))
+    jumps = [np.zeros((n, 3)), np.zeros((n, 3))]
+    jumps[0][1], jumps[1][2] = rng.normal(size=3), rng.normal(size=3)  # body 1, body 2
+
+    def state(first: bool, second: bool):
+        return (base[0] + first * jumps[0] + second * jumps[1], base[1])
+
+    # body 1: A B A B A B; body 2: A A B B A B
+    recent = [state(f, s) for f, s in ((0, 0), (1, 0), (0, 1), (1, 1), (0, 0), (1, 1))]
+    applied = (base[0] + 0.3 * jumps[0] + 0.8 * jumps[1], base[1])  # a weight per body
+    gross, radius = np.full(n, 9.81), np.ones(n)
+    each = np.arange(n)
+    assert switch(scene, recent, applied, gross, radius, each)
+    assert not switch(scene, recent, applied, gross, radius)  # one scene: four states
+    assert not switch(scene, recent, applied, gross, radius, np.zeros(n, np.int64))
+    off = (applied[0].copy(), base[1])
+    off[0][2] += (3.0, 0.0, 0.0)  # body 2 off its segment
+    assert not switch(scene, recent, off, gross, radius, each)
