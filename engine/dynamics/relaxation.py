@@ -153,6 +153,8 @@ def switch(scene, recent, applied, gross, radius, groups=None) -> bool:
         return _switch(scene, recent, applied, gross, radius, None)
     last = recent[-1]
     apart = unsettled(scene, last, applied.minus(last), gross, radius)
+    if not apart.any():  # nothing to settle on a switch: the plain test decides
+        return False
     free = ~scene.fixed
     for label in np.unique(groups[apart]):
         others = ~(free & (groups == label))  # every body but the group's, left out

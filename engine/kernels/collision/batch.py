@@ -337,6 +337,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
         levels[t, :] = 0
         skin = lists.skin
         reach = skin * (ea + eb)
+        inflate = 0.5 * reach if skin > 0.0 else 0.0  # a traversal grows every ε by s/2
         e = lists.slot[q]
         drift = 0.0
         if skin > 0.0 and e >= 0:
@@ -386,7 +387,7 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
             bank.boxes[b0:b1],
             rotation,
             shift,
-            margin + 2.0 * (0.5 * reach if skin > 0.0 else 0.0),
+            margin + 2.0 * inflate,
         ):  # the traversal's first test, without its set-up: nothing near, an empty list
             stats[STAT_SPHERES] += 1
             depth, unfoldings, n1, p1, c1 = 0, 0, n0, p0, c0
@@ -412,7 +413,6 @@ def batch_kernel(bank, trees, queries, params, lists, start, stop, counts, level
                 bank.spheres[b0:b1],
                 bank.boxes[b0:b1],
             )
-            inflate = 0.5 * reach if skin > 0.0 else 0.0
             depth, unfoldings, result, near, distances = query_kernel(
                 body_a,
                 body_b,
