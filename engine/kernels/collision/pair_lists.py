@@ -44,12 +44,12 @@ pole-to-pole pair (1,296 listed pairs; ``benchmarks/grid_pairs.py``): 32 pairs 4
 @njit(**JIT)
 def listed_scratch(most, like):
     """Buffers of :func:`listed_contacts` for lists of up to ``most`` pairs, made once per
-    batch of queries: ``(kept (most, 2), sure_a, sure_b, moving (most,)`` int64, B's moved
-    rows ``master_coords (most, 9), master_frames (most, 14)`` float64 and ``coords (most,
-    9), frames (most, 14), eps (most,)`` in the precision of ``like``, ``face (most,)``
-    int32, ``index (most,)`` int64 = 0, 1, …, and the result buffers
-    (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) with room for
-    ``most`` contacts)``. With them a listed query allocates nothing, and takes no
+    batch of queries, in this order: ``kept (most, 2)``, ``sure_a``, ``sure_b``, ``moving
+    (most,)`` int64; B's moved rows ``master_coords (most, 9)``, ``master_frames (most,
+    14)`` float64 and ``coords (most, 9)``, ``frames (most, 14)``, ``eps (most,)`` in the
+    precision of ``like``; ``face (most,)`` int32; ``index (most,)`` int64 = 0, 1, …; the
+    result buffers (:func:`~engine.kernels.geometry.triangle_batch.result_buffers`) with
+    room for ``most`` contacts. With them a listed query allocates nothing and takes no
     reference counts (:func:`listed_contacts` is a borrowing helper)."""
     most = max(most, 1)
     return (
