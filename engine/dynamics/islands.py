@@ -21,7 +21,7 @@ import numpy as np
 from engine.collision.configuration import Contacts, batched_contacts
 from engine.kernels.dynamics import contact_forces as kf
 
-__all__ = ["Searched", "labels", "moving", "search"]
+__all__ = ["Searched", "moving", "search"]
 
 
 @dataclass(frozen=True)
@@ -92,19 +92,12 @@ def _rows(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return np.repeat(starts - ends + counts, counts) + np.arange(int(ends[-1]))
 
 
-def labels(scene, evaluation) -> np.ndarray:
-    """(n,) int64: each body's island in ``evaluation`` (bodies connected by acting contacts
-    through free bodies), labelled by its smallest body; a fixed body is its own."""
-    found, free = evaluation.contacts, ~scene.fixed
-    out = np.empty(len(free), np.int64)
-    kf.contact_islands(found.bodies, found.offsets, evaluation.terms, free, out)
-    return out
-
-
 def moving(scene, evaluation, failing: np.ndarray) -> np.ndarray:
     """(n,) bool: the free bodies in the islands of the ``failing (n,)`` bool bodies — the
     bodies connected to one by acting contacts of ``evaluation``, through free bodies."""
-    island, free = labels(scene, evaluation), ~scene.fixed
-    marked = np.zeros(len(free), np.bool_)  # the failing bodies' islands (labels are bodies)
+    found, free = evaluation.contacts, ~scene.fixed
+    island = np.empty(len(free), np.int64)  # each body's island, labelled by its smallest body
+    kf.contact_islands(found.bodies, found.offsets, evaluation.terms, free, island)
+    marked = np.zeros(len(free), np.bool_)
     marked[island[failing]] = True
     return free & marked[island]

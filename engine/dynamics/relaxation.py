@@ -141,8 +141,8 @@ def switch(scene, recent, applied, gross, radius, groups=None) -> bool:
     computed ones is tested on its own bodies, with its own two values and its own weight,
     and the step settles when every such group does. Two bodies resting apart that each
     sit on a switch are two switches, four combinations of contact sets, which the whole
-    scene's two-value test never accepts (measured: a 48-object pile whose two lemons
-    each flipped a floor contact ran the 50 iterations and 46 searches of an unconverged
+    scene's two-value test never accepts (measured: a 48-object pile whose two loaves
+    each flipped a floor contact ran the 50 iterations and 44–47 searches of an unconverged
     step, 20 times in 200 steps; 9 times body by body). The test decides when to stop
     only: the applied forces are the iteration's, equal and opposite contact forces
     whatever the grouping."""
