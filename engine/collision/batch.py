@@ -34,10 +34,23 @@ __all__ = ["ContactBatch", "TreeBank", "find_contacts_batch"]
 MAX_LEVELS = 32
 """Per-level comparison counts kept per pair (deeper levels are counted, not kept)."""
 _PAIRS_PER_TASK = 256
-"""Below this many pairs per worker, one thread is faster. Most pairs of a scene can be
-cheap (a body and a far wall: an empty list, issue 16): the 48-object pile's 330 pairs took
-1.00–1.08 ms a search on 2 threads in 5 chunks of 64 pairs, 0.65 ms in one chunk, and its
-1.5 s run went from 8.78 to 7.07 s."""
+"""Below this many pairs per worker, the pairs are not dealt out in chunks to the worker
+threads. Most pairs of a scene can be cheap (a body and a far wall: an empty list, issue
+16): the 48-object pile's 330 pairs took 1.00–1.08 ms a search on 2 threads in 5 chunks of
+64 pairs, 0.65 ms in one chunk, and its 1.5 s run went from 8.78 to 7.07 s. Fewer pairs are
+searched in one chunk, or in two halves of equal listed work (:data:`SPLIT_ENTRIES`)."""
+SPLIT_ENTRIES = 3000
+"""A search of fewer than 2 × :data:`_PAIRS_PER_TASK` pairs, on two threads or more, whose
+pair cache lists at least this many leaf pairs for them is split in two halves of about
+equal work, the first run on the calling thread and the second on a worker (one hand-off:
+the worker started 5 µs after the caller on the 2-vCPU VM of BENCHMARKS.md; worker chunks
+that all went to the pool started 0.1–0.8 ms late). Work is estimated from the lists: a
+pair's listed leaf pairs, plus :data:`_QUERY_ENTRIES`, or :data:`_NEW_PAIR_ENTRIES` for a
+pair without a list. On the 48-object pile (issue 16, seventh session) the first search of a
+falling step went from 1.62 to 1.15 ms, and whole 3 s runs from 10.8 to 9.9 s and 13.0 to
+11.7 s; with 1,000 the smaller searches split as well and gained nothing."""
+_QUERY_ENTRIES = 4  # a query's own work (pose, root test), in listed leaf pairs
+_NEW_PAIR_ENTRIES = 64  # a pair without a list: traversed, its work unknown
 # chunks of pairs a worker thread takes in turn, on average (on the grid with 16 threads, 4
 # kept 12.9-13.8 threads busy and 8 kept 14.2-14.9; BENCHMARKS.md, issue 15, thirteenth step)
 _CHUNKS_PER_THREAD = 8
@@ -246,7 +259,10 @@ class TreeBank:
         queries = kb.PairQueries(*queries)
         k = len(queries.tree_a)
         threads = int(threads or CPUS)
-        if threads == 1 or k < 2 * _PAIRS_PER_TASK:
+        halves = threads > 1 and k < 2 * _PAIRS_PER_TASK
+        if halves:
+            bounds = _halves(cache, keys, k)
+        elif threads == 1:
             bounds = np.array([0, k], np.int64)
         else:
             chunks = min(k // _PAIRS_PER_TASK, _CHUNKS_PER_THREAD * threads)
@@ -293,6 +309,9 @@ class TreeBank:
 
         if len(bounds) == 2:
             parts = [chunk(0)]
+        elif halves:  # the second half on a worker, the first here
+            second = worker_pool(threads).submit(chunk, 1)
+            parts = [chunk(0), second.result()]
         else:
             pool = worker_pool(threads)
             parts = [f.result() for f in [pool.submit(chunk, c) for c in range(len(bounds) - 1)]]
@@ -361,6 +380,20 @@ def find_contacts_batch(
     )
     batch = bank.run(arrays, kernel, threads)
     return [batch[q] for q in range(len(batch))]
+
+
+def _halves(cache: PairCache | None, keys, k: int) -> np.ndarray:
+    """Query bounds ``(2,)`` or ``(3,)`` int64: one chunk, or two halves of about equal
+    work when ``cache`` lists at least :data:`SPLIT_ENTRIES` leaf pairs for the ``k`` pairs
+    ``keys``."""
+    if cache is None or keys is None or k < 2:
+        return np.array([0, k], np.int64)
+    sizes = cache.sizes(keys)
+    if int(np.maximum(sizes, 0).sum()) < SPLIT_ENTRIES:
+        return np.array([0, k], np.int64)
+    work = np.cumsum(np.where(sizes < 0, _NEW_PAIR_ENTRIES, sizes) + _QUERY_ENTRIES)
+    cut = min(max(int(np.searchsorted(work, 0.5 * work[-1])) + 1, 1), k - 1)
+    return np.array([0, cut, k], np.int64)
 
 
 def _join(parts: list[kb.BatchResult]) -> kb.BatchResult:

@@ -176,6 +176,15 @@ class PairCache:
         # a listed query's result carries its kept reference pose: the poses are the result's
         self._parts[c] = Lists(result.rotations, result.shifts, offsets, near, distances)
 
+    def sizes(self, keys: np.ndarray) -> np.ndarray:
+        """(k,) int64: the length of the list of each of ``keys (k,)`` int64, −1 where there
+        is none (the parts are read where they are, not joined)."""
+        slots = self._slots(keys)
+        if not len(self.keys):
+            return slots
+        lengths = np.concatenate([np.diff(part.offsets) for part in self._parts])
+        return np.where(slots >= 0, lengths[np.maximum(slots, 0)], -1).astype(np.int64)
+
     # ---------------------------------------------------------------- any other search
     def _slots(self, keys: np.ndarray) -> np.ndarray:
         """(k,) int64 entry of each key, −1 where none."""

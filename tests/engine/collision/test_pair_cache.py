@@ -121,3 +121,46 @@ def test_clear_and_sizes(trees):
     assert len(cache) == 48 and cache.nbytes > cache.keys.nbytes
     cache.clear()
     assert len(cache) == 0 and len(cache.near) == 0 and cache.offsets.tolist() == [0]
+
+
+@pytest.mark.parametrize("keys_order", ["sorted", "shuffled"])
+def test_a_small_search_split_in_two_halves_is_one_threads(trees, monkeypatch, keys_order):
+    """Fewer pairs than the worker chunks take, split in two halves (every search: no
+    least work): the contacts are a fresh traversal's and the lists one thread's, bit for
+    bit, through renewals and the walk's jump past every skin."""
+    monkeypatch.setattr(batch, "SPLIT_ENTRIES", 0)
+    bank = TreeBank(trees, "float64")
+    split, single = PairCache(), PairCache()
+    keys = np.arange(48, dtype=np.int64) * 3 + 1
+    if keys_order == "shuffled":
+        keys = np.random.default_rng(2).permutation(keys)
+    for args in walk(trees, seed=7, steps=24, jump=12):
+        assert len(batch._halves(split, keys, 48)) == 3  # two halves
+        got = bank.find_contacts(*args, cache=split, keys=keys, threads=2)
+        equal(got, bank.find_contacts(*args, threads=1), CONTACTS)
+        equal(bank.find_contacts(*args, cache=single, keys=keys, threads=1), got, CONTACTS)
+        equal(split, single, LISTS)
+
+
+def test_halves_balance_the_listed_work(trees, monkeypatch):
+    """The cut halves the estimated work (listed leaf pairs plus a query's own; a pair
+    without a list counts as a traversal's guess); below the least work, one chunk."""
+    bank = TreeBank(trees, "float64")
+    cache = PairCache()
+    keys = np.arange(48, dtype=np.int64)
+    args = next(walk(trees, seed=3, steps=1))
+    bank.find_contacts(*args, cache=cache, keys=keys, threads=1)
+    sizes = cache.sizes(keys)
+    np.testing.assert_array_equal(sizes, np.diff(cache.offsets))
+    assert cache.sizes(np.array([1000], np.int64)).tolist() == [-1]
+    listed = int(sizes.sum())
+    assert listed > 0
+    monkeypatch.setattr(batch, "SPLIT_ENTRIES", listed + 1)
+    assert batch._halves(cache, keys, 48).tolist() == [0, 48]
+    monkeypatch.setattr(batch, "SPLIT_ENTRIES", listed)
+    bounds = batch._halves(cache, keys, 48)
+    assert bounds[0] == 0 and bounds[2] == 48
+    work = sizes + batch._QUERY_ENTRIES
+    first, second = work[: bounds[1]].sum(), work[bounds[1] :].sum()
+    assert first >= second >= first - work[bounds[1] - 1]
+    assert batch._halves(None, keys, 48).tolist() == [0, 48]
