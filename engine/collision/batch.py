@@ -48,12 +48,14 @@ that all went to the pool started 0.1–0.8 ms late). Work is estimated from the
 pair's listed leaf pairs, plus :data:`_QUERY_ENTRIES`, or :data:`_NEW_PAIR_ENTRIES` for a
 pair without a list. On the 48-object pile (issue 16, seventh session) the first search of a
 falling step went from 1.62 to 1.15 ms, and whole 3 s runs from 10.8 to 9.9 s and 13.0 to
-11.7 s; with 1,000 the smaller searches split as well and gained nothing. A settled pile's
-search (4,200 listed leaf pairs, 2,300 compared) splits too and took 0.63 ms against 0.55 ms
-whole: lists of pairs at rest are long but mostly skipped before any arithmetic, so their
-length overstates their work there. Gating on the last search's comparisons instead (4,000)
-kept those whole but made the runs no faster (12.7 and 12.9 s against 12.2 and 12.7 s on one
-seed, alternated)."""
+11.7 s; with 1,000 the smaller searches split as well and gained nothing."""
+SPLIT_COMPARISONS = 4000
+"""… and only after a search that renewed the cache with at least this many triangle
+comparisons (``PairCache.comparisons``): the falling pile's first search of a step makes
+about 5,800, a settled pile's 2,300, whose lists are long (4,200 leaf pairs) but mostly
+skipped before any arithmetic. With this gate the settled search stayed whole, 0.51 against
+0.55 ms split, and the falling one split, 1.31 against 1.39 ms (second searches 0.32 against
+0.36 ms), on one window each."""
 _QUERY_ENTRIES = 4  # a query's own work (pose, root test), in listed leaf pairs
 _NEW_PAIR_ENTRIES = 64  # a pair without a list: traversed, its work unknown
 # chunks of pairs a worker thread takes in turn, on average (on the grid with 16 threads, 4
@@ -321,6 +323,8 @@ class TreeBank:
             pool = worker_pool(threads)
             parts = [f.result() for f in [pool.submit(chunk, c) for c in range(len(bounds) - 1)]]
         joined = _join(parts)
+        if cache is not None and not read_only:
+            cache.comparisons = int(totals[:, kb.COUNT_COMPARISONS].sum())
         if cache is not None and not by_part and not read_only:
             kept = counts[:, kb.COUNT_LISTED] == 1
             cache._replace(keys, slots, kept, joined.near_offsets, parts, bounds, threads)
@@ -390,8 +394,8 @@ def find_contacts_batch(
 def _halves(cache: PairCache | None, keys, k: int) -> np.ndarray:
     """Query bounds ``(2,)`` or ``(3,)`` int64: one chunk, or two halves of about equal
     work when ``cache`` lists at least :data:`SPLIT_ENTRIES` leaf pairs for the ``k`` pairs
-    ``keys``."""
-    if cache is None or keys is None or k < 2:
+    ``keys`` and its last renewal made :data:`SPLIT_COMPARISONS` comparisons."""
+    if cache is None or keys is None or k < 2 or cache.comparisons < SPLIT_COMPARISONS:
         return np.array([0, k], np.int64)
     sizes = cache.sizes(keys)
     if int(np.maximum(sizes, 0).sum()) < SPLIT_ENTRIES:

@@ -78,6 +78,8 @@ class PairCache:
 
     Attributes
     ----------
+    comparisons : int — triangle comparisons the last search that renewed the lists made
+        (the two-halves split of :mod:`engine.collision.batch` waits for a dear one)
     skin : float — s relative to the pair's ε_a + ε_b (0: no caching)
     keys : (m,) int64 sorted; rotations (m, 3, 3), shifts (m, 3) float64 — reference poses
     offsets : (m + 1,) int64; near : (L, 2) int64 — the lists (node pairs), CSR
@@ -98,6 +100,7 @@ class PairCache:
         self.keys = np.zeros(0, np.int64)
         self._parts: list[Lists] = [_EMPTY]
         self._bounds = np.zeros(2, np.int64)  # entry bounds of the parts
+        self.comparisons = 0  # made by the last search that renewed the lists
 
     def __len__(self) -> int:
         return len(self.keys)

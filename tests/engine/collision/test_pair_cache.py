@@ -129,6 +129,7 @@ def test_a_small_search_split_in_two_halves_is_one_threads(trees, monkeypatch, k
     least work): the contacts are a fresh traversal's and the lists one thread's, bit for
     bit, through renewals and the walk's jump past every skin."""
     monkeypatch.setattr(batch, "SPLIT_ENTRIES", 0)
+    monkeypatch.setattr(batch, "SPLIT_COMPARISONS", 0)
     bank = TreeBank(trees, "float64")
     split, single = PairCache(), PairCache()
     keys = np.arange(48, dtype=np.int64) * 3 + 1
@@ -143,18 +144,21 @@ def test_a_small_search_split_in_two_halves_is_one_threads(trees, monkeypatch, k
 
 
 def test_halves_balance_the_listed_work(trees, monkeypatch):
-    """The cut halves the estimated work (listed leaf pairs plus a query's own; a pair
-    without a list counts as a traversal's guess); below the least work, one chunk."""
+    """Split when the lists hold at least ``SPLIT_ENTRIES`` leaf pairs and the last renewal
+    made at least ``SPLIT_COMPARISONS`` comparisons, not otherwise; the cut halves the
+    estimated work (listed leaf pairs plus a query's own)."""
     bank = TreeBank(trees, "float64")
     cache = PairCache()
     keys = np.arange(48, dtype=np.int64)
-    args = next(walk(trees, seed=3, steps=1))
-    bank.find_contacts(*args, cache=cache, keys=keys, threads=1)
+    args = list(walk(trees, seed=3, steps=2))
+    found = bank.find_contacts(*args[0], cache=cache, keys=keys, threads=1)
+    assert cache.comparisons == found.comparisons > 0
     sizes = cache.sizes(keys)
     np.testing.assert_array_equal(sizes, np.diff(cache.offsets))
     assert cache.sizes(np.array([1000], np.int64)).tolist() == [-1]
     listed = int(sizes.sum())
     assert listed > 0
+    monkeypatch.setattr(batch, "SPLIT_COMPARISONS", found.comparisons)
     monkeypatch.setattr(batch, "SPLIT_ENTRIES", listed + 1)
     assert batch._halves(cache, keys, 48).tolist() == [0, 48]
     monkeypatch.setattr(batch, "SPLIT_ENTRIES", listed)
@@ -163,4 +167,17 @@ def test_halves_balance_the_listed_work(trees, monkeypatch):
     work = sizes + batch._QUERY_ENTRIES
     first, second = work[: bounds[1]].sum(), work[bounds[1] :].sum()
     assert first >= second >= first - work[bounds[1] - 1]
+    monkeypatch.setattr(batch, "SPLIT_COMPARISONS", found.comparisons + 1)
+    assert batch._halves(cache, keys, 48).tolist() == [0, 48]
     assert batch._halves(None, keys, 48).tolist() == [0, 48]
+    # a read-only search leaves the count of the last renewal
+    bank.run(query_arrays_of(args[1]), "hybrid", 1, cache, keys, read_only=True)
+    assert cache.comparisons == found.comparisons
+    cache.clear()
+    assert cache.comparisons == 0
+
+
+def query_arrays_of(args):
+    """``TreeBank.run``'s six query arrays of ``find_contacts``' arguments."""
+    ta, pa, qa, tb, pb, qb = args
+    return np.asarray(ta, np.int64), np.asarray(tb, np.int64), pa, qa, pb, qb
