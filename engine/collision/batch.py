@@ -46,10 +46,10 @@ equal work, the first run on the calling thread and the second on a worker (one 
 the worker started 5 µs after the caller on the 2-vCPU VM of BENCHMARKS.md; worker chunks
 that all went to the pool started 0.1–1.0 ms after the search began). Work is estimated
 from the lists: a pair's listed leaf pairs, plus :data:`_QUERY_ENTRIES`, or
-:data:`_NEW_PAIR_ENTRIES` for a pair without a list. On the 48-object pile (issue 16, seventh session) the first search of a
-falling step went from 1.62 to 1.15 ms, and seed 1's whole 3 s run from 10.8 to 9.9 s (seed
-4's from 13.0 to 11.7 s with the threshold at 2,000; at 1,000 the smaller searches split as
-well and seed 1 took 10.2 s)."""
+:data:`_NEW_PAIR_ENTRIES` for a pair without a list. On the 48-object pile (issue 16,
+seventh session) the first search of a falling step went from 1.62 to 1.15 ms, and seed 1's
+whole 3 s run from 10.8 to 9.9 s (seed 4's from 13.0 to 11.7 s with the threshold at 2,000;
+at 1,000 the smaller searches split as well and seed 1 took 10.2 s)."""
 SPLIT_COMPARISONS = 4000
 """… and only after a search that renewed the cache with at least this many triangle
 comparisons (``PairCache.comparisons``): the falling pile's first search of a step makes
