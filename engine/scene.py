@@ -141,6 +141,8 @@ class Scene:
         reused by the next step (:mod:`engine.dynamics.evaluation`); cleared when bodies
         are added and by steps that end elsewhere
     body_cache : BodyCache — per-body terms of the dynamics (:mod:`engine.dynamics.bodies`)
+    touching : (k, 2) int64 or None — the body pairs with a contact in the last step's
+        accepted evaluation (the sleep rule wakes through them)
     sleep : Sleep or None
     """
 
@@ -193,6 +195,7 @@ class Scene:
         self._candidates = CandidateList()  # the broad phase, kept while bodies stay near
         self.pair_cache = PairCache(skin)
         self.warm_start: WarmStart | None = None  # the last converged step's final forces
+        self.touching: np.ndarray | None = None  # pairs in contact in the last step
         self.contact_history: ContactHistory | None = None  # springs and allowances
         self.gentle_start = True  # the next step gives initial overlaps an allowance
         self.separation_speed = check_speed(separation_speed)
@@ -323,7 +326,7 @@ class Scene:
         slot = self._trees.place(body, epsilon, base, mesh, fixed, np.arange(first, first + k))
         self._wake()
         self.pair_cache.clear()  # its keys number the pairs by the body count
-        self.warm_start = None
+        self.warm_start, self.touching = None, None
         self.contact_history, self.gentle_start = None, True
         self.positions = np.concatenate([self.positions, positions])
         self.orientations = np.concatenate([self.orientations, orientations])
@@ -440,9 +443,10 @@ class Scene:
         scheme = _scheme(scheme or self.scheme)
         if self.sleep is None:
             return picard.step(self, dt, scheme)
+        start = (self.positions.copy(), self.orientations.copy())
         with self.sleep.frozen(self):
             stats = picard.step(self, dt, scheme)
-        self.sleep.update(self, body_terms(self).radius)
+        self.sleep.update(self, body_terms(self).radius, start, dt, self.touching)
         return dataclasses.replace(stats, sleeping=self.sleep.sleeping)
 
     def kinetic_energy(self) -> float:

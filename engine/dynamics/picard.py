@@ -244,6 +244,7 @@ def _explicit(scene, dt: float) -> dict:
     if scene.gentle_start:
         history, evaluation = _gentle_start(scene, evaluation, (x, q, v, w), dt, history)
     _commit_history(scene, evaluation, (x, q), dt, False, history)
+    scene.touching = touching(evaluation.contacts)
     out = tuple(np.empty_like(a) for a in (x, q, v, w))
     total = evaluation.normal.plus(evaluation.friction)
     _advance(scene, (x, q, v, w), total.force, total.torque, dt, out)
@@ -414,9 +415,16 @@ def _picard(scene, dt: float, search, full_dt: float | None = None) -> dict:
     # the forces of the accepted configuration are the next step's first evaluation
     scene.warm_start = WarmStart(key, guess, start[0], evaluation) if converged else None
     _commit_history(scene, evaluation, guess, full_dt or dt, full_dt is not None, history)
+    scene.touching = touching(evaluation.contacts)
     contacts, energy = evaluation.contacts, evaluation.energy
     told = summary(scene, contacts, counters, energy, converged, iterations)
     return {**told, "evaluations": evaluations}
+
+
+def touching(contacts) -> np.ndarray:
+    """(k, 2) int64: the body pairs of ``contacts`` with at least one contact (the sleep
+    rule wakes a body through them, :mod:`engine.dynamics.sleep`)."""
+    return np.ascontiguousarray(contacts.bodies[contacts.offsets[1:] > contacts.offsets[:-1]])
 
 
 def _carried_contacts(scene, key: tuple) -> MovedContacts | None:

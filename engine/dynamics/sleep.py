@@ -1,13 +1,22 @@
-"""Bodies at rest sleep: no narrow phase, no integration, until something moving comes near.
+"""Bodies at rest sleep: no narrow phase, no integration, until something moving touches them.
 
-A free body whose surface speed |v| + |ω|·R stays below ``speed`` for ``steps`` consecutive
-steps falls asleep: during a step it is treated as fixed (zero velocity, no integration;
-pairs of two sleeping or sleeping and fixed bodies are never tested, as fixed–fixed pairs
-are not), while its contacts with awake bodies are evaluated as usual, so an awake body
-still rests on it. After each step every body that is a broad-phase candidate of an awake
-body moving at ``speed`` or faster is kept awake (a sleeping one wakes, its velocity starting
-from zero), and wakes its neighbours in turn when it moves. Anything that changes the scene
-from outside (``set_state``, external forces, new bodies) wakes every body.
+A free body that stays within ``speed`` × ``steps`` × dt of where it came to rest for
+``steps`` consecutive steps (no point of it farther, |Δx| + θ·R: its mean surface speed
+over them below ``speed``) falls asleep: during a step it is treated as fixed (zero
+velocity, no integration; pairs of two sleeping or sleeping and fixed bodies are never
+tested, as fixed–fixed pairs are not), while its contacts with awake bodies are evaluated
+as usual, so an awake body still rests on it. The test is on where the body is, not on its
+velocity at the step's end: under the implicit midpoint rule a stiff contact mode can ring
+at the step's frequency (the velocity +v, −v, +v … while the body stays where it is), and
+a body on a switch of its contact set can cycle through a few micrometres; both are at rest.
+A body that leaves that distance is moving: after each step every body in contact with a
+moving one (a pair with a contact in the step's accepted evaluation,
+``scene.touching``; the broad phase's candidate pairs where there is none) is kept awake
+(a sleeping one wakes, its velocity starting from zero, and starts counting again), and
+wakes the bodies it touches in turn when it moves. A body merely near a moving one (a
+lemon rolling past a loaf) does not wake it: it would touch it first. Anything that
+changes the scene from outside (``set_state``, external forces, new bodies) wakes every
+body.
 
 Sleeping is an approximation (a sleeping body feels no gravity and no contact forces), off
 by default: ``Scene(sleep=True)`` or ``Scene(sleep=Sleep(speed=…, steps=…))``.
@@ -36,13 +45,15 @@ class Sleep:
 
     Parameters
     ----------
-    speed : float — surface speed below which a body counts as at rest (> 0)
+    speed : float — mean surface speed below which a body counts as at rest (> 0)
     steps : int — consecutive steps at rest before it sleeps (>= 1)
 
     Attributes
     ----------
     asleep : (n,) bool — the bodies asleep
     rest : (n,) int64 — consecutive steps each body has been at rest
+    anchor : ((n, 3), (n, 4)) float64 — positions and orientations where each resting
+        body's count began
     """
 
     def __init__(self, speed: float = 1e-3, steps: int = 50) -> None:
@@ -57,6 +68,7 @@ class Sleep:
         """Every one of ``n`` bodies awake, none at rest."""
         self.asleep = np.zeros(n, bool)
         self.rest = np.zeros(n, np.int64)
+        self.anchor = (np.zeros((n, 3)), np.zeros((n, 4)))  # set as each count begins
 
     @property
     def sleeping(self) -> int:
@@ -84,22 +96,29 @@ class Sleep:
         finally:
             scene.fixed = fixed
 
-    def update(self, scene, radius: np.ndarray) -> None:
-        """After a step of ``scene`` (bodies thawed): count the steps each awake free body
-        has been at rest — surface speed |v| + |ω|·R below :attr:`speed`, R the bounding
-        ``radius (n,) float64`` of its tree — and put to sleep those at rest for
-        :attr:`steps` steps; bodies near a moving one (broad-phase candidates) wake or
-        start counting again. A body that falls asleep is at rest: its velocity and angular
-        velocity become zero."""
+    def update(self, scene, radius: np.ndarray, start: tuple, dt: float, touching=None) -> None:
+        """After a step of ``dt`` from ``start`` (positions (n, 3), orientations (n, 4)
+        float64) of ``scene`` (bodies thawed): count the steps each awake free body has
+        been at rest — no point of it :attr:`speed` × :attr:`steps` × ``dt`` or more from
+        where it was when its count began (|Δx| + θ·R, R the bounding ``radius (n,)``
+        float64 of its tree) — and put to sleep those at rest for :attr:`steps` steps;
+        the bodies of ``touching (k, 2)`` int64 pairs (in contact in the step; None: the
+        broad phase's candidate pairs) with a moving one wake or start counting again. A
+        body that falls asleep is at rest: its velocity and angular velocity become
+        zero."""
+        if len(self.asleep) != len(radius):
+            self.wake_all(len(radius))
         moving = np.empty(len(radius), np.bool_)
+        reach = self.speed * self.steps * float(dt)
+        end = (scene.positions, scene.orientations)
         any_moving, others = kd.rest_counts(
-            scene.velocities, scene.angular_velocities, radius, scene.fixed, self.asleep,
-            self.speed, self.rest, moving,
-        )  # fmt: skip
+            start, end, self.anchor, radius, scene.fixed, self.asleep, reach, self.rest, moving
+        )
         if any_moving and others:
-            # bodies near a moving one: sleepers wake, resting ones keep counting from zero
-            _, pairs = scene.configuration(scene.positions, scene.orientations)
-            kd.wake_near(pairs, moving, self.asleep, self.rest)
+            # bodies touching a moving one: sleepers wake, resting ones count from zero
+            if touching is None:
+                _, touching = scene.configuration(scene.positions, scene.orientations)
+            kd.wake_near(touching, moving, self.asleep, self.rest)
         # asleep is at rest (frozen() zeroes them anyway)
         kd.fall_asleep(scene.fixed, self.asleep, self.rest, self.steps, scene.velocities,
                        scene.angular_velocities)  # fmt: skip

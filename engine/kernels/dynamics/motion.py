@@ -63,17 +63,28 @@ def placed_bodies(positions, orientations, centers, spheres, limit, out):
 
 
 @njit(**JIT)
-def rest_counts(velocities, angular_velocities, radius, fixed, asleep, speed, rest, moving):
-    """The sleep rule's count after a step (:mod:`engine.dynamics.sleep`): an awake free
-    body whose surface speed |v| + |ω|·R is below ``speed`` has rested one step more in
-    ``rest (n,)`` int64, every other body's count is 0, and ``moving (n,)`` bool receives
-    the awake free bodies at ``speed`` or faster; ``velocities``, ``angular_velocities
-    (n, 3)``, bounding ``radius (n,)`` float64, ``fixed``, ``asleep (n,)`` bool. Returns
-    ``(any moving, any asleep or resting)``."""
+def rest_counts(start, end, anchor, radius, fixed, asleep, reach, rest, moving):
+    """The sleep rule's count after a step (:mod:`engine.dynamics.sleep`). ``start``,
+    ``end``, ``anchor``: ``(positions (n, 3), orientations (n, 4))`` float64 — the bodies
+    at the step's start, at its end, and where each one's count began. An awake free
+    body (not ``fixed``, not ``asleep (n,)`` bool) whose count ``rest (n,)`` int64 is 0
+    begins one at the step's start (its ``anchor`` rows become ``start``'s); it has
+    rested one step more while no point of it is ``reach`` or more from where it was at
+    its anchor (|Δx| + θ·R, θ the angle of the rotation between the two orientations, R
+    its bounding ``radius (n,)`` float64), else its count is 0 and ``moving (n,)`` bool
+    receives it. Every other body's count is 0. Returns ``(any moving, any asleep or
+    resting)``."""
+    positions, orientations = end
+    anchor_positions, anchor_orientations = anchor
     any_moving, others = False, False
-    for b in range(velocities.shape[0]):
+    for b in range(positions.shape[0]):
         awake = not fixed[b] and not asleep[b]
-        resting = awake and _surface_speed(velocities, angular_velocities, radius, b) < speed
+        if awake and rest[b] == 0:
+            for i in range(3):
+                anchor_positions[b, i] = start[0][b, i]
+            for i in range(4):
+                anchor_orientations[b, i] = start[1][b, i]
+        resting = awake and _displacement(end, anchor, radius, b) < reach
         moving[b] = awake and not resting
         rest[b] = rest[b] + 1 if resting else 0
         any_moving = any_moving or moving[b]
@@ -81,9 +92,27 @@ def rest_counts(velocities, angular_velocities, radius, fixed, asleep, speed, re
     return any_moving, others
 
 
+@njit(**BORROW, forceinline=True)
+def _displacement(end, anchor, radius, b):
+    """|Δx| + θ·R of body ``b`` between ``anchor`` and ``end`` (as :func:`rest_counts`):
+    no point of it moved farther. θ = 2·atan2(|u|, |w|) for the rotation (w, u) = q ⊗ q̄ₐ
+    (accurate at small angles, where an arccos of the dot product is not)."""
+    x, q = end[0], end[1]
+    xa, qa = anchor[0], anchor[1]
+    d0, d1, d2 = x[b, 0] - xa[b, 0], x[b, 1] - xa[b, 1], x[b, 2] - xa[b, 2]
+    w, u0, u1, u2 = q[b, 0], q[b, 1], q[b, 2], q[b, 3]
+    wa, a0, a1, a2 = qa[b, 0], qa[b, 1], qa[b, 2], qa[b, 3]
+    real = w * wa + u0 * a0 + u1 * a1 + u2 * a2
+    r0 = wa * u0 - w * a0 - (u1 * a2 - u2 * a1)
+    r1 = wa * u1 - w * a1 - (u2 * a0 - u0 * a2)
+    r2 = wa * u2 - w * a2 - (u0 * a1 - u1 * a0)
+    angle = 2.0 * np.arctan2(np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), abs(real))
+    return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) + radius[b] * angle
+
+
 @njit(**JIT)
 def wake_near(pairs, moving, asleep, rest):
-    """Each body of a candidate pair ``pairs (k, 2)`` int64 whose other body is ``moving
+    """Each body of a pair ``pairs (k, 2)`` int64 whose other body is ``moving
     (n,)`` bool wakes (``asleep (n,)`` bool cleared) and starts its ``rest (n,)`` int64
     count again."""
     for t in range(pairs.shape[0]):
@@ -112,8 +141,8 @@ def fall_asleep(fixed, asleep, rest, steps, velocities, angular_velocities):
 @njit(**JIT)
 def largest_travel(velocities, angular_velocities, radius, epsilon, fixed, dt):
     """``(ratio, body)``: the largest (|v| + |ω|·R)·|dt| / ε over the bodies that are not
-    ``fixed (n,)`` bool, and the first body that has it (−1 for none); arrays as
-    :func:`rest_counts`, ``epsilon (n,)`` float64."""
+    ``fixed (n,)`` bool, and the first body that has it (−1 for none); ``velocities``,
+    ``angular_velocities (n, 3)``, bounding ``radius (n,)``, ``epsilon (n,)`` float64."""
     largest, body = 0.0, -1
     for b in range(velocities.shape[0]):
         if fixed[b]:
@@ -126,7 +155,7 @@ def largest_travel(velocities, angular_velocities, radius, epsilon, fixed, dt):
 
 @njit(**BORROW, forceinline=True)
 def _surface_speed(velocities, angular_velocities, radius, b):
-    """|v| + |ω|·R of body ``b`` (arrays as :func:`rest_counts`)."""
+    """|v| + |ω|·R of body ``b`` (arrays as :func:`largest_travel`)."""
     v0, v1, v2 = velocities[b, 0], velocities[b, 1], velocities[b, 2]
     w0, w1, w2 = angular_velocities[b, 0], angular_velocities[b, 1], angular_velocities[b, 2]
     linear = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
