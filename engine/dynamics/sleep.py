@@ -18,8 +18,8 @@ lemon rolling past a loaf) does not wake it: it would touch it first. Anything t
 changes the scene from outside (``set_state``, external forces, new bodies) wakes every
 body.
 
-Sleeping is an approximation (a sleeping body feels no gravity and no contact forces), off
-by default: ``Scene(sleep=True)`` or ``Scene(sleep=Sleep(speed=…, steps=…))``.
+Sleeping is an approximation (a sleeping body feels no gravity and no contact forces: in
+the step in which a moving body first touches it, it stands as a fixed one), off by default: ``Scene(sleep=True)`` or ``Scene(sleep=Sleep(speed=…, steps=…))``.
 
 A :class:`Sleep` does not step the scene: ``Scene.step`` runs the time step
 (:func:`engine.dynamics.picard.step`) inside :meth:`Sleep.frozen` and then calls
