@@ -15,6 +15,7 @@ from .calls import (
     contacts_call,
     failed_build,
     job_path,
+    keyed,
     scene_call,
     service_wait,
     upload_call,
@@ -52,6 +53,8 @@ class ClientBase:
     def _arguments(self, call: Call, timeout: float | None) -> dict:
         """httpx's arguments of one try of ``call`` that may take ``timeout`` seconds."""
         arguments: dict = {"timeout": timeout}
+        if call.headers:
+            arguments["headers"] = dict(call.headers)
         if call.waits:
             arguments["params"] = service_wait(timeout)
         if call.files is not None:
@@ -61,7 +64,7 @@ class ClientBase:
         return {
             **arguments,
             "content": encode(call.payload, self.media),
-            "headers": {"content-type": self.media},
+            "headers": {**call.headers, "content-type": self.media},
         }
 
     def _retry(self, call: Call, attempt: int, error: Exception | None, response=None) -> bool:
@@ -69,6 +72,8 @@ class ClientBase:
         if attempt >= self.retries:
             return False
         if response is not None:  # a failed build (503: out of memory) is not sent again
+            if response.status_code == 409 and "idempotency-key" in call.headers:
+                return "retry-after" in response.headers  # its first try is still running
             return response.status_code in RETRY_STATUS and not failed_build(response)
         return isinstance(error, NEVER_SENT) or (
             call.repeatable and isinstance(error, httpx.TransportError)
@@ -95,7 +100,7 @@ class ClientBase:
     @staticmethod
     def _step(scene_id: str, n: int, dt: float | None) -> Call:
         payload = {"steps": int(n), **({"dt": float(dt)} if dt is not None else {})}
-        return Call("POST", f"/v1/scenes/{scene_id}/step", payload=payload, repeatable=False)
+        return keyed("POST", f"/v1/scenes/{scene_id}/step", payload)
 
     @staticmethod
     def _set_state(scene_id: str, arrays: dict) -> Call:

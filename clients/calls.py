@@ -3,17 +3,19 @@ and :class:`AsyncClient` (which differ only in how they wait).
 
 Retries: a request that never reached the server (connection refused or timed out while
 connecting) and a 429 or 503 answer are retried with exponential backoff, honouring
-``Retry-After``; a connection lost after the request was sent is retried only for calls
-that are safe to repeat (reads, state overwrites, deletes, content-addressed uploads,
-contact queries) — never for creating a scene or stepping one, which would then happen
-twice.
+``Retry-After``; a connection lost after the request was sent is retried for calls that
+are safe to repeat: reads, state overwrites, deletes, content-addressed uploads, contact
+queries, and creating or stepping a scene, which carry an ``Idempotency-Key`` (a new one
+per call, the same on each of its tries): the service answers a repeated key with the
+first answer instead of creating or stepping again.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+import uuid
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +35,7 @@ __all__ = [
     "contacts_call",
     "failed_build",
     "job_path",
+    "keyed",
     "poll_delay",
     "retry_delay",
     "scene_call",
@@ -55,6 +58,14 @@ class Call:
     data: dict | None = None
     repeatable: bool = True  # safe to send again after a connection lost mid-request
     waits: bool = False  # an upload: tells the service how long it may wait (``wait``)
+    headers: dict = field(default_factory=dict)  # sent with every try
+
+
+def keyed(method: str, path: str, payload) -> Call:
+    """A call that changes state, made safe to repeat by an ``Idempotency-Key`` of its
+    own (sent with each try of it)."""
+    key = {"idempotency-key": uuid.uuid4().hex}
+    return Call(method, path, payload=payload, headers=key)
 
 
 class Expired(Exception):
@@ -178,7 +189,7 @@ def scene_call(bodies, **fields) -> Call:
         body["mesh"] = mesh_id(body["mesh"])
         out.append(body)
     payload = {"bodies": out, **{k: v for k, v in fields.items() if v is not None}}
-    return Call("POST", "/v1/scenes", payload=payload, repeatable=False)
+    return keyed("POST", "/v1/scenes", payload)
 
 
 def job_path(job: BuildJob | str, base_url: str | None = None) -> str:

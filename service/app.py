@@ -16,6 +16,7 @@ from .builds import BuildJobs
 from .codecs import BodyLimit
 from .compute import EngineRunner
 from .errors import install_handlers
+from .idempotency import InFlight
 from .metrics import Metrics
 from .routers import contacts, health, jobs, meshes, scenes
 from .scenes import LiveScenes
@@ -35,7 +36,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        app.state.store = Store(settings.data_dir, settings.tree_cache)
+        app.state.store = Store(
+            settings.data_dir, settings.tree_cache, settings.idempotency_retention
+        )
         app.state.scenes = LiveScenes(app.state.store, settings.engine_threads)
         app.state.banks = BankCache(app.state.store)
         app.state.builds = BuildJobs(
@@ -66,6 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics = metrics = Metrics()
     app.state.engine = EngineRunner(settings.engine_concurrency, metrics)
     app.state.ready = threading.Event()
+    app.state.in_flight = InFlight()  # Idempotency-Keys whose first request is running
     app.state.warmup_error = None
     app.state.warmup_seconds = None
     install_handlers(app)

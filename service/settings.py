@@ -63,6 +63,12 @@ class Settings(BaseSettings):
         ge=0.0,
         description="seconds a finished build job stays readable (0: forever)",
     )
+    idempotency_retention: float = Field(
+        24 * 3600.0,
+        ge=0.0,
+        description="seconds the answer of a request sent with an Idempotency-Key is kept"
+        " (0: forever)",
+    )
 
     @field_validator("api_keys", mode="before")
     @classmethod

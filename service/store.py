@@ -9,7 +9,9 @@ temporaries, job files without a live job and tree files nothing refers to are r
 start-up. Meshes belong to an owner (the API key's digest; "" when the service runs
 without keys); a tree file is shared by every owner of the same content and kept while a
 mesh, a scene or an unfinished build job refers to it. A scene's row holds its
-specification and its latest state, replaced in one transaction per acknowledged step.
+specification and its latest state, replaced in one transaction per acknowledged step;
+a request sent with an ``Idempotency-Key`` (:mod:`service.idempotency`) stores its answer
+with the key in the same transaction.
 
 Build jobs (:mod:`service.builds`): a row per build of one content (``queued``,
 ``building``, ``done`` or ``failed``) with the uploaders waiting for it in
@@ -34,7 +36,7 @@ import numpy as np
 
 from engine import SurrogateTree
 
-__all__ = ["Store"]
+__all__ = ["KeyTaken", "Store"]
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meshes (
@@ -74,6 +76,16 @@ CREATE TABLE IF NOT EXISTS jobs (
     attempts INTEGER NOT NULL DEFAULT 0
 );
 CREATE INDEX IF NOT EXISTS jobs_mesh ON jobs (mesh, status);
+CREATE TABLE IF NOT EXISTS idempotency (
+    owner       TEXT NOT NULL,
+    key         TEXT NOT NULL,
+    fingerprint TEXT NOT NULL,
+    status      INTEGER NOT NULL,
+    response    BLOB NOT NULL,
+    created     REAL NOT NULL,
+    PRIMARY KEY (owner, key)
+);
+CREATE INDEX IF NOT EXISTS idempotency_created ON idempotency (created);
 CREATE TABLE IF NOT EXISTS job_owners (
     job   TEXT NOT NULL,
     owner TEXT NOT NULL,
@@ -88,6 +100,10 @@ _JOB_COLUMNS = (
 )
 
 
+class KeyTaken(Exception):
+    """An idempotency key stored by another request while this one ran."""
+
+
 class Store:
     """Meshes (and their surrogate trees) per owner, durable across restarts.
 
@@ -95,9 +111,14 @@ class Store:
     ----------
     data_dir : path — created if missing
     tree_cache : int — trees kept in memory (least recently used dropped first)
+    key_retention : float — seconds an idempotency key's answer is kept (0: forever);
+        older keys are dropped whenever a key is stored
     """
 
-    def __init__(self, data_dir: str | os.PathLike, tree_cache: int = 256) -> None:
+    def __init__(
+        self, data_dir: str | os.PathLike, tree_cache: int = 256, key_retention: float = 0.0
+    ) -> None:
+        self.key_retention = float(key_retention)
         self.root = Path(data_dir)
         self.trees_dir = self.root / "trees"
         self.jobs_dir = self.root / "jobs"
@@ -224,16 +245,19 @@ class Store:
         return dropped
 
     # ----------------------------------------------------------------- scenes
-    def add_scene(self, owner: str, scene_id: str, spec: dict, state: bytes, trees) -> list:
-        """Record a new scene, its state and the trees it uses, in one transaction. Returns
-        the trees whose files are gone (their meshes deleted meanwhile): then nothing is
-        recorded."""
+    def add_scene(
+        self, owner: str, scene_id: str, spec: dict, state: bytes, trees, remember=None
+    ) -> list:
+        """Record a new scene, its state and the trees it uses, in one transaction (with
+        ``remember``, an idempotency key's row: :meth:`Key.remember
+        <service.idempotency.Key.remember>`). Returns the trees whose files are gone (their
+        meshes deleted meanwhile): then nothing is recorded. :class:`KeyTaken` if the key
+        was stored meanwhile: then nothing is recorded either."""
         with self.lock:
             missing = sorted(t for t in set(trees) if not self.tree_path(t).exists())
             if missing:
                 return missing
-            self.db.execute("BEGIN IMMEDIATE")
-            try:
+            with self._transaction():
                 self.db.execute(
                     "INSERT INTO scenes (owner, id, spec, state, steps, updated)"
                     " VALUES (?, ?, ?, ?, 0, ?)",
@@ -243,10 +267,7 @@ class Store:
                     "INSERT INTO scene_trees (owner, scene, tree) VALUES (?, ?, ?)",
                     [(owner, scene_id, t) for t in sorted(set(trees))],
                 )
-                self.db.execute("COMMIT")
-            except BaseException:
-                self.db.execute("ROLLBACK")
-                raise
+                self._store_key(owner, remember)
         return []
 
     def scene(self, owner: str, scene_id: str) -> tuple[dict, bytes, int] | None:
@@ -258,14 +279,53 @@ class Store:
             ).fetchone()
         return None if row is None else (json.loads(row[0]), bytes(row[1]), int(row[2]))
 
-    def save_state(self, owner: str, scene_id: str, state: bytes, steps: int) -> bool:
-        """Replace the scene's state (committed before this returns); False if it is gone."""
-        with self.lock:
+    def save_state(
+        self, owner: str, scene_id: str, state: bytes, steps: int, remember=None
+    ) -> bool:
+        """Replace the scene's state (committed before this returns; with ``remember``,
+        an idempotency key's row in the same transaction, as :meth:`add_scene`); False if
+        the scene is gone (nothing recorded). :class:`KeyTaken` if the key was stored
+        meanwhile (nothing recorded)."""
+        with self.lock, self._transaction():
             cursor = self.db.execute(
                 "UPDATE scenes SET state = ?, steps = ?, updated = ? WHERE owner = ? AND id = ?",
                 (state, steps, time.time(), owner, scene_id),
             )
-            return cursor.rowcount == 1
+            if cursor.rowcount != 1:
+                return False
+            self._store_key(owner, remember)
+            return True
+
+    # ------------------------------------------------------- idempotency keys
+    def _store_key(self, owner: str, remember) -> None:
+        """Insert an idempotency key's row (inside a transaction); :class:`KeyTaken` if the
+        owner has that key already."""
+        if remember is None:
+            return
+        key, fingerprint, status, response = remember
+        now = time.time()
+        if self.key_retention > 0:
+            self.db.execute(
+                "DELETE FROM idempotency WHERE created < ?", (now - self.key_retention,)
+            )
+        try:
+            self.db.execute(
+                "INSERT INTO idempotency (owner, key, fingerprint, status, response, created)"
+                " VALUES (?, ?, ?, ?, ?, ?)",
+                (owner, key, fingerprint, status, response, now),
+            )
+        except sqlite3.IntegrityError:
+            raise KeyTaken(key) from None
+
+    def remembered(self, owner: str, key: str) -> tuple[str, int, bytes] | None:
+        """``(fingerprint, status, response)`` stored with ``owner``'s idempotency
+        ``key``, or None."""
+        with self.lock:
+            row = self.db.execute(
+                "SELECT fingerprint, status, response FROM idempotency WHERE owner = ? AND key = ?",
+                (owner, key),
+            ).fetchone()
+        return None if row is None else (row[0], int(row[1]), bytes(row[2]))
 
     def delete_scene(self, owner: str, scene_id: str) -> bool:
         with self.lock:

@@ -12,6 +12,7 @@ from fastapi.responses import Response
 from ..auth import owner_of
 from ..codecs import decode, respond
 from ..errors import Conflict, NotFound, Unprocessable
+from ..idempotency import key_of, replayed
 from ..inputs import array, number
 from ..scenes import (
     STATE,
@@ -23,6 +24,7 @@ from ..scenes import (
     restore_state,
     state_of,
 )
+from ..store import KeyTaken
 from .meshes import known_mesh
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
@@ -40,23 +42,36 @@ async def create_scene(request: Request, owner: str = Depends(owner_of)):
     "contact_model": {"law": "paper" | "linear" | "hertz", "stiffness", "damping",
     "friction", "slip_velocity", "tangential_stiffness" (k_t/k_n of the static-friction
     spring, default 2/7; 0: the regularised law)}}`` → 201 ``{"id", …, "mass_source",
-    "epsilon"}`` (per row: bodies, then planes)."""
+    "epsilon"}`` (per row: bodies, then planes). With an ``Idempotency-Key`` header the
+    request may be sent again safely (:mod:`service.idempotency`)."""
     state = request.app.state
-    spec = parse_spec(
-        decode(await request.body(), request.headers.get("content-type")),
-        state.settings.max_bodies,
-    )
-    meshes = sorted({b["mesh"] for b in spec["bodies"]})
-    apply_mesh_defaults(spec, {m: known_mesh(request, owner, m) for m in meshes})
-    scene = await state.engine.run(
-        "build_scene", build_scene, spec, state.store.tree, state.settings.engine_threads
-    )
-    scene_id = uuid.uuid4().hex
-    gone = state.store.add_scene(owner, scene_id, spec, pack_state(scene), meshes)
-    if gone:  # deleted while the scene was being built
-        raise Conflict(f"mesh {gone[0]!r} was deleted while the scene was created; upload it again")
-    state.scenes.add(owner, scene_id, LiveScene(scene, spec, 0))
-    return respond(request, _summary(scene_id, state.scenes.get(owner, scene_id)), 201)
+    raw = await request.body()
+    key = key_of(request, raw)
+    with state.in_flight.claim(owner, key):
+        again = replayed(request, state.store, owner, key)
+        if again is not None:
+            return again
+        body = decode(raw, request.headers.get("content-type"))
+        spec = parse_spec(body, state.settings.max_bodies)
+        meshes = sorted({b["mesh"] for b in spec["bodies"]})
+        apply_mesh_defaults(spec, {m: known_mesh(request, owner, m) for m in meshes})
+        scene = await state.engine.run(
+            "build_scene", build_scene, spec, state.store.tree, state.settings.engine_threads
+        )
+        scene_id = uuid.uuid4().hex
+        live = LiveScene(scene, spec, 0)
+        answer = _summary(scene_id, live)
+        remember = None if key is None else key.remember(201, answer)
+        try:
+            gone = state.store.add_scene(owner, scene_id, spec, pack_state(scene), meshes, remember)
+        except KeyTaken:  # stored by a request in another process meanwhile
+            return replayed(request, state.store, owner, key)
+        if gone:  # deleted while the scene was being built
+            raise Conflict(
+                f"mesh {gone[0]!r} was deleted while the scene was created; upload it again"
+            )
+        state.scenes.add(owner, scene_id, live)
+    return respond(request, answer, 201)
 
 
 @router.get("/{scene_id}")
@@ -100,52 +115,67 @@ async def put_state(scene_id: str, request: Request, owner: str = Depends(owner_
 @router.post("/{scene_id}/step")
 async def step_scene(scene_id: str, request: Request, owner: str = Depends(owner_of)):
     """``{"steps": n, "dt"?}`` → the new state and each step's statistics. The state is
-    stored before the answer; a step that would leave a non-finite state is undone (422)."""
+    stored before the answer; a step that would leave a non-finite state is undone (422).
+    With an ``Idempotency-Key`` header the request may be sent again safely: the answer is
+    stored with the new state, in one transaction (:mod:`service.idempotency`)."""
     state = request.app.state
     raw = await request.body()
-    body = decode(raw, request.headers.get("content-type")) if raw else {}
-    if not isinstance(body, dict):
-        raise Unprocessable("body must be an object")
-    steps = number(body.get("steps", 1), "steps", 1, state.settings.max_steps, integer=True)
-    live = await _live(request, owner, scene_id)
-    dt = number(body.get("dt", live.spec["dt"]), "dt", 1e-12, 1.0)
+    key = key_of(request, raw)
+    with state.in_flight.claim(owner, key):
+        again = replayed(request, state.store, owner, key)
+        if again is not None:
+            return again
+        body = decode(raw, request.headers.get("content-type")) if raw else {}
+        if not isinstance(body, dict):
+            raise Unprocessable("body must be an object")
+        steps = number(body.get("steps", 1), "steps", 1, state.settings.max_steps, integer=True)
+        live = await _live(request, owner, scene_id)
+        dt = number(body.get("dt", live.spec["dt"]), "dt", 1e-12, 1.0)
 
-    def run():
-        with live.lock:
-            scene = live.scene
-            before = pack_state(scene)
-            stats = []
-            for k in range(steps):
-                stats.append(scene.step(dt))
-                if not all(np.isfinite(a).all() for a in state_of(scene).values()):
-                    restore_state(scene, before)
-                    raise Unprocessable(
-                        f"step {k + 1} of {steps} left a non-finite state (the simulation"
-                        " diverged); the scene keeps the state it had before this request."
-                        " Try a smaller dt or a softer contact model"
+        def run():
+            with live.lock:
+                scene = live.scene
+                before = pack_state(scene)
+                stats = []
+                for k in range(steps):
+                    stats.append(scene.step(dt))
+                    if not all(np.isfinite(a).all() for a in state_of(scene).values()):
+                        restore_state(scene, before)
+                        raise Unprocessable(
+                            f"step {k + 1} of {steps} left a non-finite state (the simulation"
+                            " diverged); the scene keeps the state it had before this"
+                            " request. Try a smaller dt or a softer contact model"
+                        )
+                answer = {
+                    "id": scene_id,
+                    "time": scene.time,
+                    "steps": live.steps + steps,
+                    "state": state_of(scene),
+                    "stats": [dataclasses.asdict(s) for s in stats],
+                }
+                remember = None if key is None else key.remember(200, answer)
+                try:
+                    saved = state.store.save_state(
+                        owner, scene_id, pack_state(scene), live.steps + steps, remember
                     )
-            if not state.store.save_state(owner, scene_id, pack_state(scene), live.steps + steps):
-                restore_state(scene, before)
-                raise NotFound(f"no scene {scene_id!r}")
-            live.steps += steps
-            return stats, state_of(scene), scene.time
+                except KeyTaken:  # stored by a request in another process meanwhile
+                    restore_state(scene, before)
+                    return None, stats
+                if not saved:
+                    restore_state(scene, before)
+                    raise NotFound(f"no scene {scene_id!r}")
+                live.steps += steps
+                return answer, stats
 
-    stats, arrays, time = await state.engine.run("step", run)
+        answer, stats = await state.engine.run("step", run)
+        if answer is None:
+            return replayed(request, state.store, owner, key)
     m = state.metrics
     m.steps.inc(steps)
     m.picard.inc(sum(s.picard_iterations for s in stats))
     m.comparisons.inc(sum(s.comparisons for s in stats))
     m.fallbacks.inc(sum(s.fallbacks for s in stats))
-    return respond(
-        request,
-        {
-            "id": scene_id,
-            "time": time,
-            "steps": live.steps,
-            "state": arrays,
-            "stats": [dataclasses.asdict(s) for s in stats],
-        },
-    )
+    return respond(request, answer)
 
 
 @router.delete("/{scene_id}", status_code=204)

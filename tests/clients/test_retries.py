@@ -1,19 +1,24 @@
-"""Retries against real misbehaving servers: 503 then success, nobody listening, and a
-server that drops every connection after reading the request."""
+"""Retries against real misbehaving servers: 503 then success, nobody listening, a server
+that drops every connection after reading the request, and a proxy in front of the real
+service that drops the connection after the service has answered."""
 
 from __future__ import annotations
 
+import asyncio
 import socket
 import threading
 import time
 
+import httpx
+import numpy as np
 import pytest
 import uvicorn
 from starlette.applications import Starlette
 from starlette.responses import JSONResponse
 from starlette.routing import Route
 
-from clients import Client, ProblemError, RemoteScene, ServiceUnreachable
+from clients import AsyncClient, Client, ProblemError, RemoteScene, ServiceUnreachable
+from engine import shapes
 from mrdem_common.serving import free_port
 
 
@@ -82,13 +87,15 @@ def test_nobody_listening():
 
 
 class Dropper:
-    """Accepts connections, reads the request, closes without answering."""
+    """Accepts connections, reads the request, closes without answering; keeps each
+    request's ``Idempotency-Key`` (None without one)."""
 
     def __init__(self) -> None:
         self.sock = socket.socket()
         self.sock.bind(("127.0.0.1", 0))
         self.sock.listen(16)
         self.accepted = 0
+        self.keys: list[str | None] = []
         self.thread = threading.Thread(target=self._serve, daemon=True)
         self.thread.start()
 
@@ -99,7 +106,9 @@ class Dropper:
             except OSError:
                 return
             self.accepted += 1
-            conn.recv(65536)
+            head = conn.recv(65536).split(b"\r\n\r\n")[0].decode("latin-1").lower()
+            fields = dict(line.split(": ", 1) for line in head.split("\r\n")[1:])
+            self.keys.append(fields.get("idempotency-key"))
             conn.close()
 
     @property
@@ -107,15 +116,136 @@ class Dropper:
         return f"http://127.0.0.1:{self.sock.getsockname()[1]}"
 
 
-def test_a_dropped_connection_is_retried_only_for_repeatable_calls():
+def test_a_dropped_connection_is_retried_for_repeatable_and_keyed_calls():
+    """A read is sent again; so is a step, with the same Idempotency-Key each time (a new
+    one per call), which the service answers with the first answer instead of stepping
+    again (below, against the real service)."""
     dropper = Dropper()
     try:
         with Client(dropper.url, retries=2, backoff=0.01) as client:
             with pytest.raises(ServiceUnreachable):
                 client.meshes()  # a read: safe to repeat
-            assert dropper.accepted == 3
+            assert dropper.accepted == 3 and dropper.keys == [None] * 3
+            scene = RemoteScene(client, "some-scene", None)
             with pytest.raises(ServiceUnreachable):
-                RemoteScene(client, "some-scene", None).step(1)  # would step twice
-            assert dropper.accepted == 4
+                scene.step(1)
+            with pytest.raises(ServiceUnreachable):
+                scene.step(1)
+            assert dropper.accepted == 9
+            first, second = dropper.keys[3:6], dropper.keys[6:9]
+            assert len(set(first)) == len(set(second)) == 1 and first[0] != second[0]
+            assert first[0] is not None and len(first[0]) == 32
     finally:
         dropper.sock.close()
+
+
+class DropOnce:
+    """A proxy in front of a real service: each request goes to the service, and the first
+    request to each of ``paths`` (matched by prefix and suffix) has its connection closed
+    after the service answered, before the answer is passed on: the service acted, the
+    client cannot tell."""
+
+    def __init__(self, target: str, drop: list[tuple[str, str]]) -> None:
+        self.target, self.drop = target, list(drop)
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(16)
+        self.forwarded: list[tuple[str, str, str | None, int]] = []
+        self.upstream = httpx.Client(base_url=target, timeout=120)
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                return
+            with conn:
+                self._one(conn)
+
+    def _one(self, conn: socket.socket) -> None:
+        data = b""
+        while b"\r\n\r\n" not in data:
+            data += conn.recv(65536)
+        head, body = data.split(b"\r\n\r\n", 1)
+        lines = head.decode("latin-1").split("\r\n")
+        method, path, _ = lines[0].split(" ")
+        headers = dict(line.split(": ", 1) for line in lines[1:])
+        length = int({k.lower(): v for k, v in headers.items()}.get("content-length", 0))
+        while len(body) < length:
+            body += conn.recv(65536)
+        headers = {k: v for k, v in headers.items() if k.lower() not in ("host", "connection")}
+        answer = self.upstream.request(method, path, content=body, headers=headers)
+        key = {k.lower(): v for k, v in headers.items()}.get("idempotency-key")
+        self.forwarded.append((method, path, key, answer.status_code))
+        rule = next(((a, b) for a, b in self.drop if path.startswith(a) and path.endswith(b)), None)
+        if method == "POST" and rule is not None:
+            self.drop.remove(rule)
+            return  # closed without an answer
+        out = [f"HTTP/1.1 {answer.status_code} {answer.reason_phrase}"]
+        for name, value in answer.headers.items():
+            if name.lower() not in ("content-length", "connection", "transfer-encoding"):
+                out.append(f"{name}: {value}")
+        out += [f"content-length: {len(answer.content)}", "connection: close", "", ""]
+        conn.sendall("\r\n".join(out).encode("latin-1") + answer.content)
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.sock.getsockname()[1]}"
+
+    def close(self) -> None:
+        self.sock.close()
+        self.upstream.close()
+
+
+def _bodies(client) -> list[dict]:
+    ball = client.upload_mesh(shapes.icosphere(1, radius=0.2), epsilon=0.01)
+    return [
+        {"mesh": ball, "position": [0.0, 0.0, 0.25], "velocity": [0.1, 0.0, 0.0]},
+        {"mesh": ball, "position": [1.0, 0.0, 0.25]},
+    ]
+
+
+def _plane() -> list[dict]:
+    return [{"point": [0, 0, 0], "normal": [0, 0, 1], "size": 4.0}]
+
+
+def test_a_connection_dropped_after_the_service_acted_creates_and_steps_once(service):
+    """The connection of the first create and the first step is dropped after the service
+    created or stepped the scene; the client sends each again with its key and gets the
+    first answer: one scene, stepped once, the same state as an undisturbed run."""
+    proxy = DropOnce(service.url, [("/v1/scenes", "/v1/scenes"), ("/v1/scenes/", "/step")])
+    try:
+        with Client(proxy.url, retries=3, backoff=0.01) as client:
+            scene = client.create_scene(_bodies(client), planes=_plane(), dt=1e-3)
+            stepped = scene.step(4)
+            assert stepped.steps == 4 and scene.state.steps == 4
+        with Client(service.url) as direct:
+            again = direct.create_scene(_bodies(direct), planes=_plane(), dt=1e-3).step(4)
+        np.testing.assert_array_equal(stepped.positions, again.positions)
+        creates = [f for f in proxy.forwarded if f[:2] == ("POST", "/v1/scenes")]
+        steps = [f for f in proxy.forwarded if f[0] == "POST" and f[1].endswith("/step")]
+        assert len(creates) == 2 and creates[0][2] == creates[1][2] is not None
+        assert len(steps) == 2 and steps[0][2] == steps[1][2] is not None
+    finally:
+        proxy.close()
+
+
+def test_the_async_client_sends_a_keyed_call_again_too(service):
+    proxy = DropOnce(service.url, [("/v1/scenes/", "/step")])
+
+    async def main():
+        async with AsyncClient(proxy.url, retries=3, backoff=0.01) as client:
+            ball = await client.upload_mesh(shapes.icosphere(1, radius=0.2), epsilon=0.01)
+            bodies = [{"mesh": ball, "position": [0.0, 0.0, 0.25]}]
+            scene = await client.create_scene(bodies, planes=_plane(), dt=1e-3)
+            stepped = await scene.step(3)
+            return stepped.steps, (await scene.state()).steps
+
+    try:
+        assert asyncio.run(main()) == (3, 3)
+        steps = [f for f in proxy.forwarded if f[0] == "POST" and f[1].endswith("/step")]
+        assert len(steps) == 2 and steps[0][2] == steps[1][2]
+    finally:
+        proxy.close()
