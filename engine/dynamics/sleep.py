@@ -19,7 +19,8 @@ changes the scene from outside (``set_state``, external forces, new bodies) wake
 body.
 
 Sleeping is an approximation (a sleeping body feels no gravity and no contact forces: in
-the step in which a moving body first touches it, it stands as a fixed one), off by default: ``Scene(sleep=True)`` or ``Scene(sleep=Sleep(speed=…, steps=…))``.
+the step in which a moving body first touches it, it stands as a fixed one), off by
+default: ``Scene(sleep=True)`` or ``Scene(sleep=Sleep(speed=…, steps=…))``.
 
 A :class:`Sleep` does not step the scene: ``Scene.step`` runs the time step
 (:func:`engine.dynamics.picard.step`) inside :meth:`Sleep.frozen` and then calls
