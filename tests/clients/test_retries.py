@@ -249,3 +249,19 @@ def test_the_async_client_sends_a_keyed_call_again_too(service):
         assert len(steps) == 2 and steps[0][2] == steps[1][2]
     finally:
         proxy.close()
+
+
+def test_a_busy_key_is_waited_out_and_other_conflicts_are_not():
+    """409 with ``Retry-After`` for a keyed call (its first try is still running on the
+    service) is tried again; a 409 without it (a conflict of the request itself), or for a
+    call without a key, is not."""
+    client = Client("http://127.0.0.1:9", retries=2)
+    keyed_call, plain_call = client._step("s", 1, None), client._set_state("s", {})
+    busy = httpx.Response(409, headers={"retry-after": "1"})
+    conflict = httpx.Response(409)
+    assert "idempotency-key" in keyed_call.headers and not plain_call.headers
+    assert client._retry(keyed_call, 0, None, busy)
+    assert not client._retry(keyed_call, 0, None, conflict)
+    assert not client._retry(plain_call, 0, None, busy)
+    assert not client._retry(keyed_call, 2, None, busy)  # the retries used up
+    client.close()
