@@ -28,7 +28,7 @@ from mrdem_common.codec import packb, unpackb
 from .codecs import respond
 from .errors import BadRequest, Conflict, Unprocessable
 
-__all__ = ["HEADER", "InFlight", "Key", "key_of", "replayed"]
+__all__ = ["HEADER", "InFlight", "Key", "key_of", "keyed", "replayed"]
 
 HEADER = "Idempotency-Key"
 REPLAYED = "Idempotent-Replayed"
@@ -113,3 +113,16 @@ class InFlight:
         finally:
             with self._lock:
                 self._keys.discard(slot)
+
+
+@contextmanager
+def keyed(
+    request: Request, owner: str, body: bytes
+) -> Iterator[tuple[Key | None, Response | None]]:
+    """Around a request that changes state: its :class:`Key` (None without the header),
+    held in the app's :class:`InFlight` while the block runs, and the stored answer of the
+    key's first request (None if there is none: the block does the work)."""
+    state = request.app.state
+    key = key_of(request, body)
+    with state.in_flight.claim(owner, key):
+        yield key, replayed(request, state.store, owner, key)

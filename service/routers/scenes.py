@@ -12,7 +12,7 @@ from fastapi.responses import Response
 from ..auth import owner_of
 from ..codecs import decode, respond
 from ..errors import Conflict, NotFound, Unprocessable
-from ..idempotency import key_of, replayed
+from ..idempotency import keyed, replayed
 from ..inputs import array, number
 from ..scenes import (
     STATE,
@@ -46,9 +46,7 @@ async def create_scene(request: Request, owner: str = Depends(owner_of)):
     request may be sent again safely (:mod:`service.idempotency`)."""
     state = request.app.state
     raw = await request.body()
-    key = key_of(request, raw)
-    with state.in_flight.claim(owner, key):
-        again = replayed(request, state.store, owner, key)
+    with keyed(request, owner, raw) as (key, again):
         if again is not None:
             return again
         body = decode(raw, request.headers.get("content-type"))
@@ -120,9 +118,7 @@ async def step_scene(scene_id: str, request: Request, owner: str = Depends(owner
     stored with the new state, in one transaction (:mod:`service.idempotency`)."""
     state = request.app.state
     raw = await request.body()
-    key = key_of(request, raw)
-    with state.in_flight.claim(owner, key):
-        again = replayed(request, state.store, owner, key)
+    with keyed(request, owner, raw) as (key, again):
         if again is not None:
             return again
         body = decode(raw, request.headers.get("content-type")) if raw else {}

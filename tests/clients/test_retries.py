@@ -86,18 +86,15 @@ def test_nobody_listening():
         client.meshes()
 
 
-class Dropper:
-    """Accepts connections, reads the request, closes without answering; keeps each
-    request's ``Idempotency-Key`` (None without one)."""
+class Listener:
+    """A socket on loopback whose connections a thread hands to ``handle`` in turn."""
 
-    def __init__(self) -> None:
+    def __init__(self, handle) -> None:
         self.sock = socket.socket()
         self.sock.bind(("127.0.0.1", 0))
         self.sock.listen(16)
-        self.accepted = 0
-        self.keys: list[str | None] = []
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
+        self.handle = handle
+        threading.Thread(target=self._serve, daemon=True).start()
 
     def _serve(self) -> None:
         while True:
@@ -105,15 +102,28 @@ class Dropper:
                 conn, _ = self.sock.accept()
             except OSError:
                 return
-            self.accepted += 1
-            head = conn.recv(65536).split(b"\r\n\r\n")[0].decode("latin-1").lower()
-            fields = dict(line.split(": ", 1) for line in head.split("\r\n")[1:])
-            self.keys.append(fields.get("idempotency-key"))
-            conn.close()
+            with conn:
+                self.handle(conn)
 
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.sock.getsockname()[1]}"
+
+
+class Dropper(Listener):
+    """Reads each request and closes without answering; keeps each request's
+    ``Idempotency-Key`` (None without one)."""
+
+    def __init__(self) -> None:
+        self.accepted = 0
+        self.keys: list[str | None] = []
+        super().__init__(self._drop)
+
+    def _drop(self, conn: socket.socket) -> None:
+        self.accepted += 1
+        head = conn.recv(65536).split(b"\r\n\r\n")[0].decode("latin-1").lower()
+        fields = dict(line.split(": ", 1) for line in head.split("\r\n")[1:])
+        self.keys.append(fields.get("idempotency-key"))
 
 
 def test_a_dropped_connection_is_retried_for_repeatable_and_keyed_calls():
@@ -139,7 +149,7 @@ def test_a_dropped_connection_is_retried_for_repeatable_and_keyed_calls():
         dropper.sock.close()
 
 
-class DropOnce:
+class DropOnce(Listener):
     """A proxy in front of a real service: each request goes to the service, and the first
     request to each of ``paths`` (matched by prefix and suffix) has its connection closed
     after the service answered, before the answer is passed on: the service acted, the
@@ -147,24 +157,11 @@ class DropOnce:
 
     def __init__(self, target: str, drop: list[tuple[str, str]]) -> None:
         self.target, self.drop = target, list(drop)
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(16)
         self.forwarded: list[tuple[str, str, str | None, int]] = []
         self.upstream = httpx.Client(base_url=target, timeout=120)
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
+        super().__init__(self._forward)
 
-    def _serve(self) -> None:
-        while True:
-            try:
-                conn, _ = self.sock.accept()
-            except OSError:
-                return
-            with conn:
-                self._one(conn)
-
-    def _one(self, conn: socket.socket) -> None:
+    def _forward(self, conn: socket.socket) -> None:
         data = b""
         while b"\r\n\r\n" not in data:
             data += conn.recv(65536)
@@ -189,10 +186,6 @@ class DropOnce:
                 out.append(f"{name}: {value}")
         out += [f"content-length: {len(answer.content)}", "connection: close", "", ""]
         conn.sendall("\r\n".join(out).encode("latin-1") + answer.content)
-
-    @property
-    def url(self) -> str:
-        return f"http://127.0.0.1:{self.sock.getsockname()[1]}"
 
     def close(self) -> None:
         self.sock.close()
