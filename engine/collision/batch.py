@@ -43,7 +43,8 @@ SPLIT_ENTRIES = 3000
 """A search of fewer than 2 × :data:`_PAIRS_PER_TASK` pairs, on two threads or more, whose
 pair cache lists at least this many leaf pairs for them is split in two halves of about
 equal work, the first run on the calling thread and the second on a worker (one hand-off:
-the worker started 5 µs after the caller on the 2-vCPU VM of BENCHMARKS.md; worker chunks
+the worker started 5 µs after the caller on the 2-vCPU VM of BENCHMARKS.md in issue 16's
+seventh session, 60–75 µs in its eighth, when a sleeping vCPU woke slowly; worker chunks
 that all went to the pool started 0.1–1.0 ms after the search began). Work is estimated
 from the lists: a pair's listed leaf pairs, plus :data:`_QUERY_ENTRIES`, or
 :data:`_NEW_PAIR_ENTRIES` for a pair without a list. On the 48-object pile (issue 16,
