@@ -10,7 +10,7 @@ from typing import Any
 
 import httpx
 
-from .base import ClientBase, scene_fields
+from .base import ClientBase
 from .calls import (
     Call,
     Expired,
@@ -19,7 +19,6 @@ from .calls import (
     job_path,
     poll_delay,
     result,
-    retry_delay,
 )
 from .errors import BuildTimeout, ProblemError, ServiceUnreachable
 from .models import BuildJob, Contacts, MeshInfo, SceneState
@@ -30,8 +29,20 @@ __all__ = ["AsyncClient", "AsyncRemoteScene"]
 class AsyncClient(ClientBase):
     """``async with AsyncClient(url) as client: await client.upload_mesh(...)``."""
 
-    def __init__(self, base_url: str, *args, transport=None, **kwargs) -> None:
-        super().__init__(base_url, *args, **kwargs)
+    def __init__(
+        self,
+        base_url: str,
+        api_key: str | None = None,
+        timeout: float | None = 60.0,
+        retries: int = 3,
+        backoff: float = 0.25,
+        wire: str = "msgpack",
+        *,
+        transport: httpx.AsyncBaseTransport | None = None,
+    ) -> None:
+        """The arguments of :class:`~clients.Client` (``transport`` an httpx async
+        transport)."""
+        super().__init__(base_url, api_key, timeout, retries, backoff, wire)
         self._http = httpx.AsyncClient(
             base_url=self.base_url, timeout=self.timeout, headers=self.headers, transport=transport
         )
@@ -43,6 +54,7 @@ class AsyncClient(ClientBase):
         await self.aclose()
 
     async def aclose(self) -> None:
+        """Close the connections."""
         await self._http.aclose()
 
     async def _exchange(
@@ -61,13 +73,13 @@ class AsyncClient(ClientBase):
             except httpx.TransportError as error:
                 if deadline is not None and time.monotonic() >= deadline:
                     raise Expired from error
-                if not self._retry(call, attempt, error):
+                delay = self.policy.delay(call, attempt, error)
+                if delay is None:
                     raise ServiceUnreachable(f"{call.method} {call.path}: {error!r}") from error
-                delay = retry_delay(attempt, self.backoff)
             else:
-                if not self._retry(call, attempt, None, response):
+                delay = self.policy.delay(call, attempt, None, response)
+                if delay is None:
                     return result(response), response
-                delay = retry_delay(attempt, self.backoff, response)
             if deadline is not None and time.monotonic() + delay >= deadline:
                 raise Expired
             await asyncio.sleep(delay)
@@ -149,58 +161,110 @@ class AsyncClient(ClientBase):
             except Expired:
                 raise BuildTimeout(timeout, job.url, job) from None
 
+    async def mesh(self, mesh: MeshInfo | str) -> MeshInfo:
+        """:meth:`Client.mesh`, awaited."""
+        payload, _ = await self._send(Call("GET", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
+        return self._mesh(payload, 200)
+
     async def meshes(self) -> list[MeshInfo]:
+        """:meth:`Client.meshes`, awaited."""
         payload, _ = await self._send(Call("GET", "/v1/meshes"))
         return [self._mesh(m, 200) for m in payload["meshes"]]
 
     async def delete_mesh(self, mesh: MeshInfo | str) -> None:
+        """:meth:`Client.delete_mesh`, awaited."""
         await self._send(Call("DELETE", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
 
-    async def contacts(self, pairs, kernel="hybrid", hierarchy=True, precision=None):
+    async def contacts(
+        self,
+        pairs,
+        kernel: str = "hybrid",
+        hierarchy: bool = True,
+        precision: str | None = None,
+    ) -> Contacts:
+        """:meth:`Client.contacts`, awaited."""
         payload, _ = await self._send(self._contacts(pairs, kernel, hierarchy, precision))
         return self._found(payload)
 
-    async def find_contacts(self, meshes, a, pa, qa, b, pb, qb, **options) -> Contacts:
-        """:meth:`Client.find_contacts`, awaited (options: kernel, hierarchy, precision)."""
+    async def find_contacts(
+        self,
+        meshes,
+        a,
+        position_a,
+        orientation_a,
+        b,
+        position_b,
+        orientation_b,
+        kernel: str = "hybrid",
+        hierarchy: bool = True,
+        precision: str | None = None,
+    ) -> Contacts:
+        """:meth:`Client.find_contacts`, awaited."""
         call = self._columnar(
             meshes,
             a,
-            pa,
-            qa,
+            position_a,
+            orientation_a,
             b,
-            pb,
-            qb,
-            options.get("kernel", "hybrid"),
-            options.get("hierarchy", True),
-            options.get("precision"),
+            position_b,
+            orientation_b,
+            kernel,
+            hierarchy,
+            precision,
         )
         payload, _ = await self._send(call)
         return self._found(payload)
 
-    async def create_scene(self, bodies, **fields) -> AsyncRemoteScene:
-        """The fields of :meth:`Client.create_scene`, as keywords."""
-        payload, _ = await self._send(self._scene(bodies, scene_fields(**fields)))
+    async def create_scene(
+        self,
+        bodies,
+        planes=None,
+        gravity=None,
+        dt: float | None = None,
+        scheme: str | None = None,
+        epsilon: float | None = None,
+        contact_model: dict | None = None,
+        kernel: str | None = None,
+        max_halvings: int | None = None,
+    ) -> AsyncRemoteScene:
+        """:meth:`Client.create_scene`, awaited."""
+        call = self._scene(
+            bodies, planes, gravity, dt, scheme, epsilon, contact_model, kernel, max_halvings
+        )
+        payload, _ = await self._send(call)
         return AsyncRemoteScene(self, payload["id"], self._state(payload))
 
 
 class AsyncRemoteScene:
+    """:class:`~clients.RemoteScene`, awaited (``state`` is a method here: ``await
+    scene.state()``)."""
+
     def __init__(self, client: AsyncClient, scene_id: str, state: SceneState) -> None:
         self.client, self.id, self.last = client, scene_id, state
 
     async def step(self, n: int = 1, dt: float | None = None) -> SceneState:
+        """:meth:`RemoteScene.step <clients.RemoteScene.step>`, awaited."""
         payload, _ = await self.client._send(self.client._step(self.id, n, dt))
         self.last = self.client._state(payload)
         return self.last
 
     async def state(self) -> SceneState:
+        """The scene's current state, read from the service."""
         payload, _ = await self.client._send(Call("GET", f"/v1/scenes/{self.id}"))
         self.last = self.client._state(payload)
         return self.last
 
-    async def set_state(self, **arrays) -> SceneState:
-        payload, _ = await self.client._send(self.client._set_state(self.id, arrays))
+    async def set_state(
+        self, positions=None, orientations=None, velocities=None, angular_velocities=None
+    ) -> SceneState:
+        """:meth:`RemoteScene.set_state <clients.RemoteScene.set_state>`, awaited."""
+        call = self.client._set_state(
+            self.id, positions, orientations, velocities, angular_velocities
+        )
+        payload, _ = await self.client._send(call)
         self.last = self.client._state(payload)
         return self.last
 
     async def delete(self) -> None:
+        """Delete the scene on the service."""
         await self.client._send(Call("DELETE", f"/v1/scenes/{self.id}"))

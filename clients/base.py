@@ -3,17 +3,13 @@ headers, request arguments, and turning answers into models."""
 
 from __future__ import annotations
 
-from typing import Any
-
 import httpx
 
 from .calls import (
-    NEVER_SENT,
-    RETRY_STATUS,
     Call,
+    RetryPolicy,
     columnar_call,
     contacts_call,
-    failed_build,
     job_path,
     keyed,
     scene_call,
@@ -45,6 +41,7 @@ class ClientBase:
             raise ClientError(f"wire must be 'msgpack' or 'json', got {wire!r}")
         self.base_url, self.timeout = base_url.rstrip("/"), timeout
         self.retries, self.backoff = int(retries), float(backoff)
+        self.policy = RetryPolicy(self.retries, self.backoff)
         self.media = MSGPACK if wire == "msgpack" else JSON
         self.headers = {"accept": self.media}
         if api_key:
@@ -67,18 +64,6 @@ class ClientBase:
             "headers": {**call.headers, "content-type": self.media},
         }
 
-    def _retry(self, call: Call, attempt: int, error: Exception | None, response=None) -> bool:
-        """Whether to try ``call`` again after this failure."""
-        if attempt >= self.retries:
-            return False
-        if response is not None:  # a failed build (503: out of memory) is not sent again
-            if response.status_code == 409 and "idempotency-key" in call.headers:
-                return "retry-after" in response.headers  # its first try is still running
-            return response.status_code in RETRY_STATUS and not failed_build(response)
-        return isinstance(error, NEVER_SENT) or (
-            call.repeatable and isinstance(error, httpx.TransportError)
-        )
-
     # ---------------------------------------------------------------- calls
     @staticmethod
     def _upload(source, epsilon, branching, strict=None) -> Call:
@@ -94,8 +79,13 @@ class ClientBase:
         return columnar_call(meshes, a, pa, qa, b, pb, qb, options)
 
     @staticmethod
-    def _scene(bodies, fields) -> Call:
-        return scene_call(bodies, **fields)
+    def _scene(bodies, *fields) -> Call:
+        """``POST /v1/scenes`` of ``bodies`` and the fields of ``create_scene``, in its
+        order (planes, gravity, dt, scheme, epsilon, contact_model, kernel,
+        max_halvings); the unset ones (None) left out."""
+        names = ("planes", "gravity", "dt", "scheme", "epsilon", "contact_model", "kernel")
+        given = dict(zip((*names, "max_halvings"), fields, strict=True))
+        return scene_call(bodies, **{k: v for k, v in given.items() if v is not None})
 
     @staticmethod
     def _step(scene_id: str, n: int, dt: float | None) -> Call:
@@ -103,11 +93,10 @@ class ClientBase:
         return keyed("POST", f"/v1/scenes/{scene_id}/step", payload)
 
     @staticmethod
-    def _set_state(scene_id: str, arrays: dict) -> Call:
-        payload = {k: v for k, v in arrays.items() if v is not None}
-        unknown = set(payload) - set(STATE)
-        if unknown:
-            raise ClientError(f"unknown state fields {sorted(unknown)}; expected {list(STATE)}")
+    def _set_state(scene_id: str, *arrays) -> Call:
+        """``PUT /v1/scenes/{id}/state`` of the arrays of ``set_state`` in its order
+        (positions, orientations, velocities, angular_velocities); None ones left out."""
+        payload = {k: v for k, v in zip(STATE, arrays, strict=True) if v is not None}
         return Call("PUT", f"/v1/scenes/{scene_id}/state", payload=payload)
 
     # --------------------------------------------------------------- models
@@ -142,8 +131,3 @@ class ClientBase:
     @staticmethod
     def _state(payload: dict) -> SceneState:
         return SceneState.from_payload(payload)
-
-
-def scene_fields(**fields: Any) -> dict:
-    """The optional fields of a scene, without the unset ones."""
-    return {k: v for k, v in fields.items() if v is not None}

@@ -13,6 +13,7 @@ first answer instead of creating or stepping again.
 from __future__ import annotations
 
 import os
+import random
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -37,7 +38,7 @@ __all__ = [
     "job_path",
     "keyed",
     "poll_delay",
-    "retry_delay",
+    "RetryPolicy",
     "scene_call",
     "upload_call",
 ]
@@ -231,16 +232,48 @@ def failed_build(response: httpx.Response) -> bool:
     return isinstance(problem, dict) and bool(problem.get("job")) and bool(problem.get("cause"))
 
 
-def retry_delay(attempt: int, backoff: float, response: httpx.Response | None = None) -> float:
-    """Seconds before retry ``attempt`` (0-based): ``Retry-After`` when the server gave
-    one (capped at 60 s), else ``backoff``·2^attempt."""
-    if response is not None:
-        value = response.headers.get("retry-after", "")
-        try:
-            return min(max(float(value), 0.0), 60.0)
-        except ValueError:
-            pass
-    return backoff * 2**attempt
+@dataclass(frozen=True)
+class RetryPolicy:
+    """When, and after how long, both clients send a call again: after a try that never
+    reached the server (connection refused, connect timeout), or — for a call that is
+    safe to repeat (:attr:`Call.repeatable`) — any transport error; after a 429 or 503
+    answer (not a failed build's 503); after a 409 with ``Retry-After`` for a call with an
+    ``Idempotency-Key`` (its first try still runs on the service). At most ``retries``
+    times after the first try. The pause: the answer's ``Retry-After`` (capped at 60 s),
+    else ``backoff`` × 2^attempt with jitter (between half of it and all of it), so that
+    clients that failed together do not all come back at once."""
+
+    retries: int
+    backoff: float
+
+    def delay(
+        self,
+        call: Call,
+        attempt: int,
+        error: Exception | None = None,
+        response: httpx.Response | None = None,
+    ) -> float | None:
+        """Seconds to wait before trying ``call`` again after its try ``attempt`` (0-based)
+        failed with the transport ``error`` or the answer ``response``; None: not again."""
+        if attempt >= self.retries:
+            return None
+        if response is not None:
+            status = response.status_code
+            busy = status == 409 and "idempotency-key" in call.headers
+            if busy and "retry-after" not in response.headers:
+                return None
+            if not busy and (status not in RETRY_STATUS or failed_build(response)):
+                return None
+            after = response.headers.get("retry-after", "")
+            try:
+                return min(max(float(after), 0.0), 60.0)
+            except ValueError:
+                pass
+        elif not isinstance(error, NEVER_SENT) and not (
+            call.repeatable and isinstance(error, httpx.TransportError)
+        ):
+            return None
+        return self.backoff * 2**attempt * (0.5 + 0.5 * random.random())
 
 
 def result(response: httpx.Response) -> Any:

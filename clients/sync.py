@@ -8,7 +8,7 @@ from typing import Any, Literal, overload
 
 import httpx
 
-from .base import ClientBase, scene_fields
+from .base import ClientBase
 from .calls import (
     Call,
     Expired,
@@ -17,7 +17,6 @@ from .calls import (
     job_path,
     poll_delay,
     result,
-    retry_delay,
 )
 from .errors import BuildTimeout, ProblemError, ServiceUnreachable
 from .models import BuildJob, Contacts, MeshInfo, SceneState
@@ -32,8 +31,23 @@ class Client(ClientBase):
     ...     ball = client.upload_mesh("ball.stl", epsilon=0.01)
     """
 
-    def __init__(self, base_url: str, *args, transport=None, **kwargs) -> None:
-        super().__init__(base_url, *args, **kwargs)
+    def __init__(
+        self,
+        base_url: str,
+        api_key: str | None = None,
+        timeout: float | None = 60.0,
+        retries: int = 3,
+        backoff: float = 0.25,
+        wire: str = "msgpack",
+        *,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
+        """``base_url`` of the service; ``api_key`` sent as a bearer token; ``timeout``
+        seconds per request (None: none); ``retries`` after the first try and ``backoff``
+        seconds, doubled per retry, with jitter (:class:`~clients.calls.RetryPolicy`);
+        ``wire`` "msgpack" (default: arrays as typed binary) or "json"; ``transport`` an
+        httpx transport (tests, proxies)."""
+        super().__init__(base_url, api_key, timeout, retries, backoff, wire)
         self._http = httpx.Client(
             base_url=self.base_url, timeout=self.timeout, headers=self.headers, transport=transport
         )
@@ -45,6 +59,7 @@ class Client(ClientBase):
         self.close()
 
     def close(self) -> None:
+        """Close the connections."""
         self._http.close()
 
     def _exchange(self, call: Call, deadline: float | None = None) -> tuple[Any, httpx.Response]:
@@ -61,13 +76,13 @@ class Client(ClientBase):
             except httpx.TransportError as error:
                 if deadline is not None and time.monotonic() >= deadline:
                     raise Expired from error
-                if not self._retry(call, attempt, error):
+                delay = self.policy.delay(call, attempt, error)
+                if delay is None:
                     raise ServiceUnreachable(f"{call.method} {call.path}: {error!r}") from error
-                delay = retry_delay(attempt, self.backoff)
             else:
-                if not self._retry(call, attempt, None, response):
+                delay = self.policy.delay(call, attempt, None, response)
+                if delay is None:
                     return result(response), response
-                delay = retry_delay(attempt, self.backoff, response)
             if deadline is not None and time.monotonic() + delay >= deadline:
                 raise Expired
             time.sleep(delay)
@@ -192,10 +207,13 @@ class Client(ClientBase):
         return self._mesh(payload, 200)
 
     def meshes(self) -> list[MeshInfo]:
+        """Every finished mesh of the caller."""
         payload, _ = self._send(Call("GET", "/v1/meshes"))
         return [self._mesh(m, 200) for m in payload["meshes"]]
 
     def delete_mesh(self, mesh: MeshInfo | str) -> None:
+        """Delete one of the caller's meshes (by :class:`MeshInfo` or id); scenes that use
+        it keep its tree."""
         self._send(Call("DELETE", f"/v1/meshes/{getattr(mesh, 'id', mesh)}"))
 
     def contacts(
@@ -255,17 +273,10 @@ class Client(ClientBase):
         max_halvings: int | None = None,
     ) -> RemoteScene:
         """A scene with the fields of ``POST /v1/scenes``; returns its handle."""
-        fields = scene_fields(
-            planes=planes,
-            gravity=gravity,
-            dt=dt,
-            scheme=scheme,
-            epsilon=epsilon,
-            contact_model=contact_model,
-            kernel=kernel,
-            max_halvings=max_halvings,
+        call = self._scene(
+            bodies, planes, gravity, dt, scheme, epsilon, contact_model, kernel, max_halvings
         )
-        payload, _ = self._send(self._scene(bodies, fields))
+        payload, _ = self._send(call)
         return RemoteScene(self, payload["id"], self._state(payload))
 
 
@@ -284,6 +295,7 @@ class RemoteScene:
 
     @property
     def state(self) -> SceneState:
+        """The scene's current state, read from the service."""
         payload, _ = self.client._send(Call("GET", f"/v1/scenes/{self.id}"))
         self.last = self.client._state(payload)
         return self.last
@@ -291,15 +303,16 @@ class RemoteScene:
     def set_state(
         self, positions=None, orientations=None, velocities=None, angular_velocities=None
     ) -> SceneState:
-        arrays = {
-            "positions": positions,
-            "orientations": orientations,
-            "velocities": velocities,
-            "angular_velocities": angular_velocities,
-        }
-        payload, _ = self.client._send(self.client._set_state(self.id, arrays))
+        """Overwrite any of ``positions (n, 3)``, ``orientations (n, 4)``, ``velocities``,
+        ``angular_velocities (n, 3)``; the new state, with ``overlaps`` when positions or
+        orientations were set."""
+        call = self.client._set_state(
+            self.id, positions, orientations, velocities, angular_velocities
+        )
+        payload, _ = self.client._send(call)
         self.last = self.client._state(payload)
         return self.last
 
     def delete(self) -> None:
+        """Delete the scene on the service."""
         self.client._send(Call("DELETE", f"/v1/scenes/{self.id}"))

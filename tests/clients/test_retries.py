@@ -18,6 +18,7 @@ from starlette.responses import JSONResponse
 from starlette.routing import Route
 
 from clients import AsyncClient, Client, ProblemError, RemoteScene, ServiceUnreachable
+from clients.calls import Call, RetryPolicy
 from engine import shapes
 from mrdem_common.serving import free_port
 
@@ -246,15 +247,41 @@ def test_the_async_client_sends_a_keyed_call_again_too(service):
 
 def test_a_busy_key_is_waited_out_and_other_conflicts_are_not():
     """409 with ``Retry-After`` for a keyed call (its first try is still running on the
-    service) is tried again; a 409 without it (a conflict of the request itself), or for a
-    call without a key, is not."""
+    service) is tried again after it; a 409 without it (a conflict of the request itself),
+    or for a call without a key, is not."""
     client = Client("http://127.0.0.1:9", retries=2)
-    keyed_call, plain_call = client._step("s", 1, None), client._set_state("s", {})
-    busy = httpx.Response(409, headers={"retry-after": "1"})
+    keyed_call, plain_call = (
+        client._step("s", 1, None),
+        client._set_state("s", None, None, None, None),
+    )
+    busy = httpx.Response(409, headers={"retry-after": "1.5"})
     conflict = httpx.Response(409)
     assert "idempotency-key" in keyed_call.headers and not plain_call.headers
-    assert client._retry(keyed_call, 0, None, busy)
-    assert not client._retry(keyed_call, 0, None, conflict)
-    assert not client._retry(plain_call, 0, None, busy)
-    assert not client._retry(keyed_call, 2, None, busy)  # the retries used up
+    assert client.policy.delay(keyed_call, 0, None, busy) == 1.5
+    assert client.policy.delay(keyed_call, 0, None, conflict) is None
+    assert client.policy.delay(plain_call, 0, None, busy) is None
+    assert client.policy.delay(keyed_call, 2, None, busy) is None  # the retries used up
     client.close()
+
+
+def test_the_pause_backs_off_with_jitter_and_honours_retry_after():
+    """Without ``Retry-After`` the pause before retry k is between half of and all of
+    backoff × 2^k, spread (clients failing together do not all return at once); with it,
+    its value, at most 60 s; 429 and 503 are retried, other answers and a lost connection
+    of a call that is not safe to repeat are not."""
+    policy = RetryPolicy(retries=5, backoff=0.1)
+    read = Call("GET", "/v1/meshes")
+    once = Call("POST", "/v1/x", repeatable=False)
+    for attempt in range(4):
+        pauses = [policy.delay(read, attempt, httpx.ConnectError("refused")) for _ in range(200)]
+        ceiling = 0.1 * 2**attempt
+        assert all(ceiling / 2 <= p <= ceiling for p in pauses)
+        assert np.std(pauses) > ceiling / 20
+    assert policy.delay(read, 0, None, httpx.Response(503, headers={"retry-after": "7"})) == 7
+    assert policy.delay(read, 0, None, httpx.Response(429, headers={"retry-after": "900"})) == 60
+    assert policy.delay(read, 0, None, httpx.Response(429)) is not None
+    assert policy.delay(read, 0, None, httpx.Response(500)) is None
+    assert policy.delay(once, 0, httpx.ReadError("lost")) is None
+    assert policy.delay(once, 0, httpx.ConnectError("refused")) is not None  # never sent
+    assert policy.delay(read, 0, httpx.ReadError("lost")) is not None
+    assert policy.delay(read, 5, httpx.ConnectError("refused")) is None
