@@ -12,6 +12,7 @@ first answer instead of creating or stepping again.
 
 from __future__ import annotations
 
+import math
 import os
 import random
 import time
@@ -264,11 +265,12 @@ class RetryPolicy:
                 return None
             if not busy and (status not in RETRY_STATUS or failed_build(response)):
                 return None
-            after = response.headers.get("retry-after", "")
             try:
-                return min(max(float(after), 0.0), 60.0)
+                after = float(response.headers.get("retry-after", ""))
             except ValueError:
-                pass
+                after = math.nan
+            if math.isfinite(after):  # not "inf" or "nan" either
+                return min(max(after, 0.0), 60.0)
         elif not isinstance(error, NEVER_SENT) and not (
             call.repeatable and isinstance(error, httpx.TransportError)
         ):

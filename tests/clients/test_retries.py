@@ -279,6 +279,9 @@ def test_the_pause_backs_off_with_jitter_and_honours_retry_after():
         assert np.std(pauses) > ceiling / 20
     assert policy.delay(read, 0, None, httpx.Response(503, headers={"retry-after": "7"})) == 7
     assert policy.delay(read, 0, None, httpx.Response(429, headers={"retry-after": "900"})) == 60
+    for unusable in ("nan", "inf", "soon"):  # the backoff instead
+        after = policy.delay(read, 0, None, httpx.Response(429, headers={"retry-after": unusable}))
+        assert 0.05 <= after <= 0.1
     assert policy.delay(read, 0, None, httpx.Response(429)) is not None
     assert policy.delay(read, 0, None, httpx.Response(500)) is None
     assert policy.delay(once, 0, httpx.ReadError("lost")) is None
