@@ -18,7 +18,7 @@ from service.idempotency import InFlight, Key
 from service.store import KeyTaken, Store
 
 
-def _ball_scene(http: httpx.Client) -> dict:
+def _scene_spec(http: httpx.Client) -> dict:
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) - 0.25
     faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
     mesh = http.post("/v1/meshes", json={"vertices": vertices.tolist(), "faces": faces})
@@ -40,7 +40,7 @@ def _scenes(data_dir) -> int:
 
 
 def test_a_repeated_key_creates_one_scene_and_answers_the_first_answer(http, service):
-    spec = _ball_scene(http)
+    spec = _scene_spec(http)
     key = {"Idempotency-Key": uuid.uuid4().hex}
     before = _scenes(service.data_dir)
     first = http.post("/v1/scenes", json=spec, headers=key)
@@ -64,7 +64,7 @@ def test_a_repeated_key_creates_one_scene_and_answers_the_first_answer(http, ser
 
 
 def test_a_repeated_step_steps_once(http):
-    scene = http.post("/v1/scenes", json=_ball_scene(http)).json()["id"]
+    scene = http.post("/v1/scenes", json=_scene_spec(http)).json()["id"]
     path = f"/v1/scenes/{scene}/step"
     key = {"Idempotency-Key": uuid.uuid4().hex}
     first = http.post(path, json={"steps": 5}, headers=key)
@@ -81,7 +81,7 @@ def test_a_repeated_step_steps_once(http):
 
 
 def test_a_key_with_another_request_or_a_malformed_key_is_refused(http):
-    spec = _ball_scene(http)
+    spec = _scene_spec(http)
     key = {"Idempotency-Key": uuid.uuid4().hex}
     scene = http.post("/v1/scenes", json=spec, headers=key).json()["id"]
     changed = {**spec, "dt": 2e-3}
@@ -103,7 +103,7 @@ def test_keys_survive_kill_9_with_their_effect_and_belong_to_their_owner(tmp_pat
     try:
         auth = {"authorization": "Bearer first-key-123"}
         with httpx.Client(base_url=first.url, timeout=120, headers=auth) as client:
-            created = client.post("/v1/scenes", json=_ball_scene(client), headers=key)
+            created = client.post("/v1/scenes", json=_scene_spec(client), headers=key)
             scene = created.json()["id"]
             stepped = client.post(f"/v1/scenes/{scene}/step", json={"steps": 3}, headers=key)
             assert stepped.status_code == 422  # the key is the scene's creation's
@@ -123,7 +123,7 @@ def test_keys_survive_kill_9_with_their_effect_and_belong_to_their_owner(tmp_pat
             assert client.get(f"/v1/scenes/{scene}").json()["steps"] == 3
         other = {"authorization": "Bearer second-key-456"}
         with httpx.Client(base_url=second.url, timeout=120, headers=other) as client:
-            mine = client.post("/v1/scenes", json=_ball_scene(client), headers=key)
+            mine = client.post("/v1/scenes", json=_scene_spec(client), headers=key)
             assert mine.status_code == 201 and "idempotent-replayed" not in mine.headers
             assert mine.json()["id"] != scene  # another owner's key of the same name
     finally:
