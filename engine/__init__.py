@@ -9,6 +9,7 @@ Never imports ``service`` or ``clients``.
 """
 
 from engine import scenarios
+from engine.arguments import KERNELS, PRECISIONS
 from engine.collision import (
     ContactBatch,
     ContactSet,
@@ -31,6 +32,7 @@ from engine.dynamics import (
     StepStats,
     TunnellingWarning,
 )
+from engine.dynamics.inertia import check_inertia
 from engine.errors import EngineError, InvalidArgumentError, InvalidMeshError
 from engine.geometry import (
     DEFAULT_ITERATIONS,
@@ -51,10 +53,16 @@ from engine.geometry import (
     triangle_distances,
 )
 from engine.scene import DEFAULT_SCHEME, SCHEMES, Scene, SceneState
-from engine.trees import SurrogateTree, TreeStats, build_tree, size_epsilon
+from engine.trees import TREE_FORMAT, SurrogateTree, TreeStats, build_tree, size_epsilon
+from engine.trees.halos import AUTO as AUTO_EPSILON
 from engine.warmup import warmup
 
 __all__ = [
+    "AUTO_EPSILON",
+    "KERNELS",
+    "PRECISIONS",
+    "TREE_FORMAT",
+    "check_inertia",
     "ContactSet",
     "ContactStats",
     "Pose",

@@ -18,6 +18,7 @@ from .compute import EngineRunner
 from .errors import install_handlers
 from .idempotency import InFlight
 from .metrics import Metrics
+from .openapi import install as install_openapi
 from .routers import contacts, health, jobs, meshes, scenes
 from .scenes import LiveScenes
 from .settings import Settings
@@ -73,6 +74,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.warmup_error = None
     app.state.warmup_seconds = None
     install_handlers(app)
+    install_openapi(app)
     for module in (health, jobs, meshes, contacts, scenes):  # jobs before /v1/meshes/{id}
         app.include_router(module.router)
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)

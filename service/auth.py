@@ -1,29 +1,33 @@
-"""Optional bearer API keys. With ``MRDEM_API_KEYS`` set, every ``/v1`` call needs one, and
-the key's owner (a digest of the key, never the key itself) scopes what it sees."""
+"""Optional bearer API keys (the OpenAPI document's ``HTTPBearer`` scheme). With
+``MRDEM_API_KEYS`` set, every ``/v1`` call needs one, and the key's owner (a digest of the
+key, never the key itself) scopes what it sees."""
 
 from __future__ import annotations
 
 import hashlib
 import hmac
 
-from fastapi import Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from .errors import Unauthorized
 
-__all__ = ["owner_of"]
+__all__ = ["bearer", "owner_of"]
 
 _CHALLENGE = {"WWW-Authenticate": "Bearer"}
 
+bearer = HTTPBearer(
+    auto_error=False,
+    description="An API key, when the service has any (MRDEM_API_KEYS); none otherwise.",
+)
 
-def owner_of(request: Request) -> str:
-    """FastAPI dependency: the caller's owner id ("" when the service has no keys)."""
-    keys = request.app.state.settings.api_keys
+
+def owner_of(keys: tuple[str, ...], credentials: HTTPAuthorizationCredentials | None) -> str:
+    """The caller's owner id ("" when the service has no keys); 401 without a known key."""
     if not keys:
         return ""
-    scheme, _, token = request.headers.get("authorization", "").partition(" ")
-    if scheme.lower() != "bearer" or not token.strip():
+    if credentials is None or not credentials.credentials.strip():
         raise Unauthorized("missing API key: send 'Authorization: Bearer <key>'", _CHALLENGE)
-    token = token.strip().encode()
+    token = credentials.credentials.strip().encode()
     for key in keys:
         if hmac.compare_digest(token, key.encode()):
             return hashlib.sha256(key.encode()).hexdigest()[:24]

@@ -43,8 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from engine import EngineError, Mesh, build_tree
-from engine.trees.tree import TREE_FORMAT
+from engine import TREE_FORMAT, EngineError, Mesh, build_tree
 
 from .store import ACTIVE, Store
 

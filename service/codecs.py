@@ -16,6 +16,7 @@ from typing import Any
 import msgpack
 from fastapi import Request
 from fastapi.responses import Response
+from pydantic import BaseModel
 
 from mrdem_common.codec import JSON, MSGPACK, NDARRAY_EXT, CodecError, packb, plain, unpackb
 
@@ -69,7 +70,10 @@ def _wants(request: Request) -> str:
 
 
 def respond(request: Request, payload: Any, status: int = 200, headers=None) -> Response:
-    """``payload`` in the media type the request accepts (JSON unless it asks msgpack)."""
+    """``payload`` (a model, or plain values and arrays) in the media type the request
+    accepts (JSON unless it asks msgpack)."""
+    if isinstance(payload, BaseModel):
+        payload = payload.model_dump()
     if _wants(request) == MSGPACK:
         return Response(encode_msgpack(payload), status, headers, media_type=MSGPACK)
     body = json.dumps(payload, default=plain, allow_nan=False, separators=(",", ":"))

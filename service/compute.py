@@ -1,4 +1,6 @@
-"""Engine calls off the event loop, at most ``engine_concurrency`` at a time.
+"""Engine calls off the event loop, at most ``engine_concurrency`` at a time; store calls,
+body parsing and answer encoding off the loop too, in their own threads (``io``), so that
+they never queue behind long engine calls and never hold up ``/healthz``.
 
 The kernels release the GIL (``nogil``) and none uses Numba's ``parallel=True`` threading
 layer (which aborts the process when parallel kernels are entered from several threads):
@@ -20,9 +22,17 @@ __all__ = ["EngineRunner"]
 
 
 class EngineRunner:
-    def __init__(self, concurrency: int, metrics=None) -> None:
+    def __init__(self, concurrency: int, metrics=None, io_concurrency: int = 16) -> None:
         self.limiter = anyio.CapacityLimiter(concurrency)
+        self.io_limiter = anyio.CapacityLimiter(io_concurrency)
         self.metrics = metrics
+
+    async def io(self, fn: Callable, *args: Any, **kwargs: Any) -> Any:
+        """``fn(*args, **kwargs)`` in a worker thread of its own pool: store calls,
+        decoding and encoding bodies (short, blocking work that must not run on the loop)."""
+        return await anyio.to_thread.run_sync(
+            functools.partial(fn, *args, **kwargs), limiter=self.io_limiter
+        )
 
     async def run(self, name: str, fn: Callable, *args: Any, **kwargs: Any) -> Any:
         """``fn(*args, **kwargs)`` in a worker thread; its seconds go to the metrics."""

@@ -32,6 +32,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from engine import EngineError
 
+from .models.problems import field_errors, joined
+
 __all__ = [
     "BadRequest",
     "Conflict",
@@ -124,11 +126,9 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
-        parts = []
-        for error in exc.errors():
-            where = ".".join(str(p) for p in error.get("loc", ()) if p != "body")
-            parts.append(f"{where}: {error.get('msg')}" if where else str(error.get("msg")))
-        return problem(422, Unprocessable.title, "; ".join(parts), request.url.path)
+        errors = field_errors(exc.errors())
+        detail = joined(errors)
+        return problem(422, Unprocessable.title, detail, request.url.path, errors=errors)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):

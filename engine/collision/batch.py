@@ -137,6 +137,21 @@ class ContactBatch:
         """Triangle comparisons over all pairs."""
         return int(self.totals[kb.COUNT_COMPARISONS])
 
+    @property
+    def iterative(self) -> int:
+        """Iterative triangle evaluations over all pairs."""
+        return int(self.totals[kb.COUNT_ITERATIVE])
+
+    @property
+    def fallbacks(self) -> int:
+        """Exact fallbacks of the iterative kernel over all pairs."""
+        return int(self.totals[kb.COUNT_FALLBACKS])
+
+    @property
+    def sphere_pruned(self) -> int:
+        """Node pairs pruned by bounding spheres or boxes over all pairs."""
+        return int(self.totals[kb.COUNT_SPHERES])
+
 
 class TreeBank:
     """Surrogate trees concatenated for batched queries, in one precision.

@@ -19,123 +19,94 @@ normals unit from A to B, overlaps ε_a + ε_b − d, pairs (face of A, face of 
 from __future__ import annotations
 
 import time
+from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Request
 
-from engine import DEFAULT_PRECISION, Pose, find_contacts_batch
-from engine.arguments import KERNELS, PRECISIONS
-from engine.kernels.collision import batch as kb
+from engine import Pose, find_contacts_batch
 
-from ..auth import owner_of
-from ..codecs import decode, respond
+from ..codecs import respond
+from ..deps import Banks, Config, Engine, Meter, Owner, Storage, body
 from ..errors import Unprocessable
-from ..inputs import QUATERNION_TOLERANCE, array, choice, field, flag, pose
+from ..models import ColumnarContacts, ColumnarQuery, ContactsQuery, PerPairContacts, PerPairQuery
+from ..openapi import documented
 from .meshes import known_mesh
 
 router = APIRouter(prefix="/v1", tags=["contacts"])
 
-IDENTITY = {"position": [0.0, 0.0, 0.0], "orientation": [1.0, 0.0, 0.0, 0.0]}
 
-
-@router.post("/contacts")
-async def contacts(request: Request, owner: str = Depends(owner_of)):
-    state = request.app.state
-    body = decode(await request.body(), request.headers.get("content-type"))
-    if not isinstance(body, dict):
-        raise Unprocessable("body must be an object")
-    kernel = choice(body.get("kernel", "hybrid"), "kernel", KERNELS)
-    hierarchy = flag(body.get("hierarchy", True), "hierarchy")
-    precision = choice(body.get("precision", DEFAULT_PRECISION), "precision", PRECISIONS)
-    columnar = "pairs" not in body
-    meshes, query = _columnar(body) if columnar else _per_pair(field(body, "pairs"))
-    n = len(query[0])
-    if n > state.settings.max_pairs:
-        most = state.settings.max_pairs
+@router.post(
+    "/contacts",
+    summary="Contacts of posed mesh pairs (batched)",
+    **documented(
+        {200: ([ColumnarContacts, PerPairContacts], "The contacts, in the request's layout")},
+        (400, 401, 404, 406, 413, 415, 422),
+        body=[ColumnarQuery, PerPairQuery],
+    ),
+)
+async def contacts(
+    request: Request,
+    owner: Owner,
+    settings: Config,
+    store: Storage,
+    engine: Engine,
+    banks: Banks,
+    metrics: Meter,
+    query: Annotated[ColumnarQuery | PerPairQuery, body(ContactsQuery)],
+):
+    """The contacts of n posed pairs of uploaded meshes, columnar (CSR) or per pair."""
+    columnar = isinstance(query, ColumnarQuery)
+    meshes, columns = _columns(query)
+    n = len(columns[0])
+    if n > settings.max_pairs:
+        most = settings.max_pairs
         raise Unprocessable(f"{n:,} pairs in one request; this service takes <= {most:,}")
     for mesh_id in meshes:
-        known_mesh(request, owner, mesh_id)
+        await known_mesh(engine, store, owner, mesh_id)
     start = time.perf_counter()
-    if hierarchy:
-        bank = await state.engine.run("load_trees", state.banks.get, tuple(meshes), precision)
-        a, pa, qa, b, pb, qb = query
-        batch = await state.engine.run(
+    if query.hierarchy:
+        bank = await engine.run("load_trees", banks.get, tuple(meshes), query.precision)
+        batch = await engine.run(
             "contacts",
             bank.find_contacts,
-            a,
-            pa,
-            qa,
-            b,
-            pb,
-            qb,
-            kernel=kernel,
-            threads=state.settings.engine_threads,
+            *columns,
+            kernel=query.kernel,
+            threads=settings.engine_threads,
         )
         found = _from_batch(batch)
     else:
-        trees = [await state.engine.run("load_tree", state.store.tree, m) for m in meshes]
-        found = await state.engine.run("contacts", _flat, trees, query, kernel, precision)
+        trees = [await engine.run("load_tree", store.tree, m) for m in meshes]
+        found = await engine.run("contacts", _flat, trees, columns, query.kernel, query.precision)
     found["stats"]["seconds"] = time.perf_counter() - start
-    _count(state.metrics, found["stats"])
+    _count(metrics, found["stats"])
     if columnar:
-        return respond(request, found)
-    return respond(request, {"results": _split(found), "stats": found["stats"]})
+        answer = ColumnarContacts(**found)
+    else:
+        answer = PerPairContacts(results=_split(found), stats=found["stats"])
+    return await engine.io(respond, request, answer)
 
 
-def _columnar(body: dict):
-    meshes = field(body, "meshes")
-    if not isinstance(meshes, list) or not meshes or not all(isinstance(m, str) for m in meshes):
-        raise Unprocessable("meshes must be a non-empty list of mesh ids")
-    a = array(field(body, "a"), "a", (None,), integer=True)
-    n = len(a)
-    if n == 0:
-        raise Unprocessable("a must name at least one pair")
-    b = array(field(body, "b"), "b", (n,), integer=True)
-    for name, index in (("a", a), ("b", b)):
-        if index.min() < 0 or index.max() >= len(meshes):
-            raise Unprocessable(f"{name} holds indices outside meshes (0 … {len(meshes) - 1})")
-    pa = array(field(body, "position_a"), "position_a", (n, 3))
-    qa = _unit_rows(field(body, "orientation_a"), "orientation_a", n)
-    pb = array(field(body, "position_b"), "position_b", (n, 3))
-    qb = _unit_rows(field(body, "orientation_b"), "orientation_b", n)
-    return meshes, (a, pa, qa, b, pb, qb)
-
-
-def _unit_rows(value, name: str, n: int) -> np.ndarray:
-    q = array(value, name, (n, 4))
-    norms = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
-    if len(bad):
-        raise Unprocessable(
-            f"{name}[{bad[0]}] must be a unit quaternion (w, x, y, z); its norm is"
-            f" {norms[bad[0]]:.9g} (norms within {QUATERNION_TOLERANCE:g} of 1 are normalised)"
-        )
-    return q / norms[:, None]
-
-
-def _per_pair(items):
-    if not isinstance(items, list) or not items:
-        raise Unprocessable("pairs must be a non-empty list of {a, pose_a, b, pose_b}")
+def _columns(query: ColumnarQuery | PerPairQuery) -> tuple[list[str], tuple]:
+    """The meshes and the six columns ``(a, pa, qa, b, pb, qb)`` of either layout."""
+    if isinstance(query, ColumnarQuery):
+        q = query
+        return q.meshes, (q.a, q.position_a, q.orientation_a, q.b, q.position_b, q.orientation_b)
     meshes: dict[str, int] = {}
-    columns = [[] for _ in range(6)]
-    for i, item in enumerate(items):
-        where = f"pairs[{i}]"
-        for side, (index, position, orientation) in zip(
-            ("a", "b"), ((0, 1, 2), (3, 4, 5)), strict=True
-        ):
-            mesh_id = field(item, side, where)
-            if not isinstance(mesh_id, str):
-                raise Unprocessable(f"{where}.{side} must be a mesh id (string)")
-            p, q = pose(item.get(f"pose_{side}", IDENTITY), f"{where}.pose_{side}")
-            columns[index].append(meshes.setdefault(mesh_id, len(meshes)))
-            columns[position].append(p)
-            columns[orientation].append(q)
-    a, pa, qa, b, pb, qb = (np.array(c) for c in columns)
-    return list(meshes), (a, pa, qa, b, pb, qb)
+    a = [meshes.setdefault(p.a, len(meshes)) for p in query.pairs]
+    b = [meshes.setdefault(p.b, len(meshes)) for p in query.pairs]
+    pairs = query.pairs
+    return list(meshes), (
+        np.array(a, np.int64),
+        np.array([p.pose_a.position for p in pairs]),
+        np.array([p.pose_a.orientation for p in pairs]),
+        np.array(b, np.int64),
+        np.array([p.pose_b.position for p in pairs]),
+        np.array([p.pose_b.orientation for p in pairs]),
+    )
 
 
 def _from_batch(batch) -> dict:
-    counts = batch.counts
     return {
         "offsets": batch.contact_offsets,
         "points": batch.points,
@@ -146,10 +117,10 @@ def _from_batch(batch) -> dict:
         "stats": {
             "pairs": len(batch),
             "contacts": len(batch.points),
-            "comparisons": int(counts[:, kb.COUNT_COMPARISONS].sum()),
-            "iterative": int(counts[:, kb.COUNT_ITERATIVE].sum()),
-            "fallbacks": int(counts[:, kb.COUNT_FALLBACKS].sum()),
-            "sphere_pruned": int(counts[:, kb.COUNT_SPHERES].sum()),
+            "comparisons": batch.comparisons,
+            "iterative": batch.iterative,
+            "fallbacks": batch.fallbacks,
+            "sphere_pruned": batch.sphere_pruned,
         },
     }
 

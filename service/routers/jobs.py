@@ -9,11 +9,15 @@ wait for. ``GET /v1/meshes/jobs?limit=100`` lists the caller's newest ``limit`` 
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Query, Request
+from typing import Annotated
 
-from ..auth import owner_of
+from fastapi import APIRouter, Query, Request
+
 from ..codecs import respond
+from ..deps import Builds, Engine, Owner, Storage
 from ..errors import NotFound
+from ..models import BuildJob, JobList
+from ..openapi import documented
 from ..store import ACTIVE
 
 router = APIRouter(prefix="/v1/meshes/jobs", tags=["meshes"])
@@ -26,16 +30,15 @@ def job_location(job_id: str) -> str:
     return f"{router.prefix}/{job_id}"
 
 
-def job_view(request: Request, owner: str, job: dict) -> dict:
-    """The job as answered to ``owner`` (``job`` read with that owner)."""
-    state = request.app.state
+def job_view(store, builds, owner: str, job: dict) -> BuildJob:
+    """The job as answered to ``owner`` (``job`` read with that owner); reads the store."""
     spec, extra = job["spec"], job.get("extra", {})
     levels, nodes = job["levels"], job["nodes"]
     if job["status"] in ACTIVE:
-        live = state.builds.progress(job["id"])
+        live = builds.progress(job["id"])
         if live is not None:
             levels, nodes = live
-    body = {
+    view = {
         "id": job["id"],
         "status": job["status"],
         "mesh": job["mesh"],
@@ -53,26 +56,47 @@ def job_view(request: Request, owner: str, job: dict) -> dict:
         "repair": extra.get("repair"),
     }
     if job["status"] == "done":
-        body["mesh_url"] = f"/v1/meshes/{job['mesh']}"
-        body["facts"] = state.store.mesh(owner, job["mesh"])  # None once deleted
-    return body
+        view["mesh_url"] = f"/v1/meshes/{job['mesh']}"
+        view["facts"] = store.mesh(owner, job["mesh"])  # None once deleted
+    return BuildJob(**view)
 
 
-@router.get("")
+def _jobs(store, builds, owner: str, limit: int) -> JobList:
+    jobs = [builds.job(j["id"], owner) for j in store.jobs(owner, limit=limit)]
+    return JobList(jobs=[job_view(store, builds, owner, j) for j in jobs if j])
+
+
+@router.get(
+    "",
+    summary="This API key's build jobs",
+    **documented({200: (JobList, "The newest jobs, oldest first")}, (401, 406, 422)),
+)
 async def list_jobs(
     request: Request,
-    owner: str = Depends(owner_of),
-    limit: int = Query(100, ge=1, le=MAX_LISTED),
+    owner: Owner,
+    store: Storage,
+    builds: Builds,
+    engine: Engine,
+    limit: Annotated[int, Query(ge=1, le=MAX_LISTED, description="newest jobs listed")] = 100,
 ):
-    state = request.app.state
-    jobs = [state.builds.job(j["id"], owner) for j in state.store.jobs(owner, limit=limit)]
-    return respond(request, {"jobs": [job_view(request, owner, j) for j in jobs if j]})
+    return respond(request, await engine.io(_jobs, store, builds, owner, limit))
 
 
-@router.get("/{job_id}")
-async def get_job(job_id: str, request: Request, owner: str = Depends(owner_of)):
-    job = request.app.state.builds.job(job_id, owner)
+def _job(store, builds, owner: str, job_id: str) -> BuildJob:
+    job = builds.job(job_id, owner)
     if job is None:
         raise NotFound(f"no build job {job_id!r}")
-    headers = {"Retry-After": POLL_AFTER} if job["status"] in ACTIVE else None
-    return respond(request, job_view(request, owner, job), headers=headers)
+    return job_view(store, builds, owner, job)
+
+
+@router.get(
+    "/{job_id}",
+    summary="A build job",
+    **documented({200: (BuildJob, "The job (Retry-After while unfinished)")}, (401, 404, 406, 422)),
+)
+async def get_job(
+    job_id: str, request: Request, owner: Owner, store: Storage, builds: Builds, engine: Engine
+):
+    job = await engine.io(_job, store, builds, owner, job_id)
+    headers = {"Retry-After": POLL_AFTER} if job.status in ACTIVE else None
+    return respond(request, job, headers=headers)

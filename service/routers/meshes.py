@@ -15,166 +15,231 @@ from __future__ import annotations
 
 import io
 from pathlib import PurePath
+from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
+from pydantic import ValidationError
 
 from engine import InvalidMeshError, Mesh, load_mesh, size_epsilon
 
-from ..auth import owner_of
 from ..builds import content_id, mesh_facts
-from ..codecs import decode, respond
+from ..codecs import respond
+from ..deps import Banks, Builds, Config, Engine, Owner, Storage, invalid, validated
 from ..errors import BadRequest, Conflict, NotFound, NotReady, ServiceError, Unprocessable
-from ..inputs import array, field, flag, number
+from ..models import (
+    MAX_BRANCHING,
+    BuildJob,
+    MeshFacts,
+    MeshForm,
+    MeshList,
+    MeshUpload,
+    SurrogateLevel,
+)
+from ..openapi import documented
 from ..store import ACTIVE
 from .jobs import POLL_AFTER, job_location, job_view
 
 router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
 
 FILE_TYPES = ("stl", "obj", "ply", "off", "glb", "gltf")
-MAX_BRANCHING = 64
 STRICT_ADVICE = "send strict=false (the default) to have them repaired"
+MESH_FILE = {
+    "type": "object",
+    "required": ["file"],
+    "properties": {
+        "file": {"type": "string", "format": "binary", "description": "STL, OBJ, PLY, OFF, GLB"},
+        "file_type": {
+            "type": "string",
+            "enum": list(FILE_TYPES),
+            "description": "default: the file name's suffix",
+        },
+        "epsilon": {"type": "number", "exclusiveMinimum": 0},
+        "branching": {"type": "integer", "minimum": 2, "maximum": MAX_BRANCHING},
+        "strict": {"type": "boolean"},
+    },
+}
 
 
-@router.post("")
-async def upload_mesh(request: Request, owner: str = Depends(owner_of)):
+@router.post(
+    "",
+    summary="Upload a mesh (file or arrays); its surrogate tree is built",
+    **documented(
+        {
+            200: (MeshFacts, "This API key had the mesh already"),
+            201: (MeshFacts, "The mesh, its tree built and stored"),
+            202: (BuildJob, "The tree is still being built: poll Location"),
+        },
+        (400, 401, 406, 409, 413, 415, 422, 503),
+        body=MeshUpload,
+        multipart=MESH_FILE,
+    ),
+)
+async def upload_mesh(
+    request: Request,
+    owner: Owner,
+    settings: Config,
+    store: Storage,
+    engine: Engine,
+    builds: Builds,
+    wait: Annotated[
+        float | None,
+        Query(
+            ge=0,
+            allow_inf_nan=False,
+            description="seconds to wait for the build (at most"
+            " MRDEM_BUILD_WAIT); a client sets it below its read timeout",
+        ),
+    ] = None,
+):
     """A mesh file as multipart ``file`` (STL, OBJ, PLY, OFF, GLB; optional form fields
     ``epsilon``, ``branching``, ``strict``, ``file_type``), or a JSON/msgpack body
     ``{vertices (V, 3), faces (F, 3), epsilon?, branching?, strict?}``. 201 with the facts
     (200 when this owner has the mesh already) once its tree is stored; 202 with
     ``Location`` of the build job when the build takes longer than the wait: the query
-    parameter ``wait`` (seconds, >= 0; a client sets it below its read timeout), at most
-    ``MRDEM_BUILD_WAIT``."""
-    state = request.app.state
-    wait = state.settings.build_wait
-    if "wait" in request.query_params:
-        asked = request.query_params["wait"]
-        try:
-            wait = min(wait, number(float(asked), "wait", 0.0))
-        except ValueError:
-            raise Unprocessable(f"wait must be a number of seconds >= 0, got {asked!r}") from None
+    parameter ``wait`` (seconds, >= 0), at most ``MRDEM_BUILD_WAIT``."""
+    wait = settings.build_wait if wait is None else min(settings.build_wait, wait)
     media = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if media == "multipart/form-data":
-        data, file_type, options = await _from_form(request)
-        mesh = await state.engine.run(
+        data, file_type, options = await _from_form(request, settings.max_body_bytes)
+        mesh = await engine.run(
             "load_mesh", _repaired, load_mesh, io.BytesIO(data), file_type, options["strict"]
         )
     else:
-        body = decode(await request.body(), media)
-        vertices = array(field(body, "vertices"), "vertices", (None, 3))
-        faces = array(field(body, "faces"), "faces", (None, 3), integer=True)
-        options = {k: body[k] for k in ("epsilon", "branching") if body.get(k) is not None}
-        options["strict"] = flag(body.get("strict", False), "strict")
-        _check_faces(vertices, faces, state.settings.max_triangles)
-        mesh = await state.engine.run("repair", _repaired, Mesh, vertices, faces, options["strict"])
-    limit = state.settings.max_triangles
-    if mesh.n_faces > limit:
-        raise Unprocessable(f"mesh has {mesh.n_faces:,} triangles; this service takes <= {limit:,}")
-    epsilon, branching, mesh_id = await state.engine.run("mesh_id", _identify, mesh, options)
+        raw = await request.body()
+        upload = await engine.io(validated, MeshUpload, raw, media)
+        options = {"epsilon": upload.epsilon, "branching": upload.branching}
+        options = {k: v for k, v in options.items() if v is not None}
+        options["strict"] = upload.strict
+        if len(upload.faces) > settings.max_triangles:
+            raise _too_many(len(upload.faces), settings.max_triangles)
+        mesh = await engine.run(
+            "repair", _repaired, Mesh, upload.vertices, upload.faces, upload.strict
+        )
+        del upload
+    if mesh.n_faces > settings.max_triangles:
+        raise _too_many(mesh.n_faces, settings.max_triangles)
+    epsilon, branching, mesh_id = await engine.run("mesh_id", _identify, mesh, options)
     extra = {"repair": mesh.repair.summary(), "epsilon_given": options.get("epsilon") is not None}
-    facts = state.store.mesh(owner, mesh_id)
+    facts = await engine.io(store.mesh, owner, mesh_id)
     if facts is not None:
-        return respond(request, {**facts, "repair": extra["repair"]}, 200)
-    if state.store.tree_path(mesh_id).exists():  # built for another owner (or a scene)
+        return respond(request, MeshFacts(**{**facts, "repair": extra["repair"]}), 200)
+    if await engine.io(store.tree_path(mesh_id).exists):  # built for another owner or a scene
         try:
-            tree = await state.engine.run("load_tree", state.store.tree, mesh_id)
+            tree = await engine.run("load_tree", store.tree, mesh_id)
         except FileNotFoundError:  # its last owner deleted it just now: build it again
             pass
         else:
-            facts = await state.engine.run(
+            facts = await engine.run(
                 "mesh_facts", mesh_facts, mesh_id, mesh, tree, epsilon, branching
             )
             facts = {**facts, **extra}
-            created = state.store.add_mesh(owner, mesh_id, facts)
+            created = await engine.io(store.add_mesh, owner, mesh_id, facts)
             if created is not None:  # None: the tree file went meanwhile: build it again
-                return respond(
-                    request,
-                    facts if created else state.store.mesh(owner, mesh_id),
-                    201 if created else 200,
-                )
+                if not created:
+                    facts = await engine.io(store.mesh, owner, mesh_id)
+                return respond(request, MeshFacts(**facts), 201 if created else 200)
     spec = {
         "epsilon": epsilon,
         "branching": branching,
         "triangles": mesh.n_faces,
         "vertices": mesh.n_vertices,
     }
-    submitted = await state.engine.run(
-        "submit_build", state.builds.submit, owner, mesh, mesh_id, spec, extra
-    )
+    submitted = await engine.run("submit_build", builds.submit, owner, mesh, mesh_id, spec, extra)
     del mesh
-    await state.builds.wait(submitted.job_id, wait)
-    job = state.builds.job(submitted.job_id, owner)
+    await builds.wait(submitted.job_id, wait)
+    job = await engine.io(builds.job, submitted.job_id, owner)
     if job is None:  # this owner deleted the mesh while its upload waited
         raise Conflict(f"mesh {mesh_id!r} was deleted while its upload waited for the build")
     if job["status"] == "done":
-        facts = state.store.mesh(owner, mesh_id)
+        facts = await engine.io(store.mesh, owner, mesh_id)
         if facts is None:
             raise Conflict(f"mesh {mesh_id!r} was deleted while its upload waited for the build")
-        return respond(
-            request, {**facts, "repair": extra["repair"]}, 201 if submitted.added else 200
-        )
+        facts = MeshFacts(**{**facts, "repair": extra["repair"]})
+        return respond(request, facts, 201 if submitted.added else 200)
     if job["status"] == "failed":
         raise _failure(job)
-    location = job_location(job["id"])
-    return respond(
-        request,
-        job_view(request, owner, job),
-        202,
-        headers={"Location": location, "Retry-After": POLL_AFTER},
-    )
+    view = await engine.io(job_view, store, builds, owner, job)
+    headers = {"Location": job_location(job["id"]), "Retry-After": POLL_AFTER}
+    return respond(request, view, 202, headers=headers)
 
 
-@router.get("")
-async def list_meshes(request: Request, owner: str = Depends(owner_of)):
-    return respond(request, {"meshes": request.app.state.store.meshes(owner)})
+@router.get(
+    "",
+    summary="This API key's meshes",
+    **documented({200: (MeshList, "The meshes, oldest first")}, (401, 406)),
+)
+async def list_meshes(request: Request, owner: Owner, store: Storage, engine: Engine):
+    meshes = await engine.io(store.meshes, owner)
+    return respond(request, MeshList(meshes=meshes))
 
 
-@router.get("/{mesh_id}")
-async def get_mesh(mesh_id: str, request: Request, owner: str = Depends(owner_of)):
-    return respond(request, known_mesh(request, owner, mesh_id))
+@router.get(
+    "/{mesh_id}",
+    summary="A mesh's facts",
+    **documented({200: (MeshFacts, "The mesh")}, (401, 404, 406, 422)),
+)
+async def get_mesh(mesh_id: str, request: Request, owner: Owner, store: Storage, engine: Engine):
+    return respond(request, MeshFacts(**await known_mesh(engine, store, owner, mesh_id)))
 
 
-@router.delete("/{mesh_id}", status_code=204)
-async def delete_mesh(mesh_id: str, request: Request, owner: str = Depends(owner_of)):
+@router.delete(
+    "/{mesh_id}",
+    status_code=204,
+    summary="Forget a mesh (or withdraw its upload while it builds)",
+    **documented({204: (None, "Forgotten")}, (401, 404, 422)),
+)
+async def delete_mesh(
+    mesh_id: str, owner: Owner, store: Storage, engine: Engine, builds: Builds, banks: Banks
+):
     """Forget the mesh; while its tree is still being built, withdraw this owner's upload
     (the job is then gone for this owner, and stops when nobody else waits for it)."""
-    state = request.app.state
-    if await state.engine.run("delete_mesh", state.store.delete_mesh, owner, mesh_id):
-        state.banks.forget(mesh_id)
-    elif not await state.engine.run("leave_job", state.builds.leave, owner, mesh_id):
+    if await engine.run("delete_mesh", store.delete_mesh, owner, mesh_id):
+        banks.forget(mesh_id)
+    elif not await engine.run("leave_job", builds.leave, owner, mesh_id):
         raise NotFound(f"no mesh {mesh_id!r}")
     return Response(status_code=204)
 
 
-@router.get("/{mesh_id}/surrogates")
+@router.get(
+    "/{mesh_id}/surrogates",
+    summary="The surrogate triangles of one tree level",
+    **documented({200: (SurrogateLevel, "The level's nodes")}, (401, 404, 406, 422)),
+)
 async def surrogates(
-    mesh_id: str, request: Request, level: int = 0, owner: str = Depends(owner_of)
+    mesh_id: str,
+    request: Request,
+    owner: Owner,
+    store: Storage,
+    engine: Engine,
+    level: Annotated[int, Query(ge=0, description="0: the root")] = 0,
 ):
     """The nodes of one tree level (0: the root): ``triangles (k, 3, 3)``, ``epsilon (k,)``,
     ``leaf (k,)`` (original triangles at that level)."""
-    facts = known_mesh(request, owner, mesh_id)
-    if not 0 <= level < facts["levels"]:
+    facts = await known_mesh(engine, store, owner, mesh_id)
+    if not level < facts["levels"]:
         raise Unprocessable(f"level must be in 0 … {facts['levels'] - 1}, got {level}")
-    tree = await request.app.state.engine.run("load_tree", request.app.state.store.tree, mesh_id)
+    tree = await engine.run("load_tree", store.tree, mesh_id)
     nodes = np.flatnonzero(tree.level == level)
-    return respond(
-        request,
-        {
-            "id": mesh_id,
-            "level": level,
-            "levels": facts["levels"],
-            "triangles": tree.triangles[nodes],
-            "epsilon": tree.epsilon[nodes],
-            "leaf": tree.face[nodes] >= 0,
-        },
+    answer = SurrogateLevel(
+        id=mesh_id,
+        level=level,
+        levels=facts["levels"],
+        triangles=tree.triangles[nodes],
+        epsilon=tree.epsilon[nodes],
+        leaf=(tree.face[nodes] >= 0).tolist(),
     )
+    return await engine.io(respond, request, answer)
 
 
-def known_mesh(request: Request, owner: str, mesh_id: str) -> dict:
+async def known_mesh(engine, store, owner: str, mesh_id: str) -> dict:
     """The facts of ``owner``'s mesh, or 404 (which names the build job when the mesh's
     tree is still being built)."""
-    store = request.app.state.store
+    return await engine.io(_known, store, owner, mesh_id)
+
+
+def _known(store, owner: str, mesh_id: str) -> dict:
     facts = store.mesh(owner, mesh_id)
     if facts is None:
         pending = [j for j in store.jobs(owner, ACTIVE) if j["mesh"] == mesh_id]
@@ -187,10 +252,13 @@ def known_mesh(request: Request, owner: str, mesh_id: str) -> dict:
     return facts
 
 
-async def _from_form(request: Request) -> tuple[bytes, str, dict]:
+def _too_many(triangles: int, limit: int) -> Unprocessable:
+    return Unprocessable(f"mesh has {triangles:,} triangles; this service takes <= {limit:,}")
+
+
+async def _from_form(request: Request, limit: int) -> tuple[bytes, str, dict]:
     """The file's bytes, its format and the form's options (``epsilon``, ``branching``,
     ``strict``)."""
-    limit = request.app.state.settings.max_body_bytes
     try:
         form = await request.form(max_files=1, max_fields=8, max_part_size=limit)
     except ServiceError:  # e.g. the body limit, raised while the form streams in
@@ -210,29 +278,15 @@ async def _from_form(request: Request) -> tuple[bytes, str, dict]:
     data = await upload.read()
     if not data:
         raise Unprocessable(f"the uploaded file {upload.filename!r} is empty")
-    options: dict = {}
-    for name in ("epsilon", "branching"):
-        if form.get(name) not in (None, ""):
-            try:
-                options[name] = float(form[name]) if name == "epsilon" else int(form[name])
-            except ValueError:
-                raise Unprocessable(f"{name} must be a number, got {form[name]!r}") from None
-    strict = str(form.get("strict") or "false").strip().lower()
-    if strict not in ("true", "false", "1", "0"):
-        raise Unprocessable(f"strict must be true or false, got {form['strict']!r}")
-    options["strict"] = strict in ("true", "1")
+    fields = {
+        k: form[k] for k in ("epsilon", "branching", "strict") if form.get(k) not in (None, "")
+    }
+    try:
+        chosen = MeshForm.model_validate(fields)
+    except ValidationError as error:
+        raise invalid(error) from None
+    options = {k: v for k, v in chosen.model_dump().items() if v is not None}
     return data, file_type, options
-
-
-def _check_faces(vertices: np.ndarray, faces: np.ndarray, limit: int) -> None:
-    if len(faces) > limit:
-        raise Unprocessable(f"mesh has {len(faces):,} triangles; this service takes <= {limit:,}")
-    if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
-        bad = int(faces.max() if faces.max() >= len(vertices) else faces.min())
-        raise Unprocessable(
-            f"faces refer to vertex {bad} but there are {len(vertices)} vertices"
-            f" (indices 0 … {len(vertices) - 1})"
-        )
 
 
 def _repaired(make, *args) -> Mesh:
@@ -257,10 +311,8 @@ def _identify(mesh: Mesh, options: dict) -> tuple[float, int, str]:
     default (:func:`engine.size_epsilon`: the engine's one rule), branching in 2 … 64
     (default 8)."""
     epsilon = options.get("epsilon")
-    epsilon = size_epsilon(mesh) if epsilon is None else number(epsilon, "epsilon", 0.0)
-    if not epsilon > 0:
-        raise Unprocessable(f"epsilon must be > 0, got {epsilon!r}")
-    branching = number(options.get("branching", 8), "branching", 2, MAX_BRANCHING, integer=True)
+    epsilon = size_epsilon(mesh) if epsilon is None else float(epsilon)
+    branching = int(options.get("branching", 8))
     return epsilon, branching, content_id(mesh, epsilon, branching)
 
 

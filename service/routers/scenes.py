@@ -2,25 +2,24 @@
 
 from __future__ import annotations
 
-import dataclasses
 import uuid
+from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Header, Request
 from fastapi.responses import Response
 
-from ..auth import owner_of
-from ..codecs import decode, respond
+from ..codecs import respond
+from ..deps import Config, Engine, Live, Meter, Owner, Storage, body, validated
 from ..errors import Conflict, NotFound, Unprocessable
-from ..idempotency import keyed, replayed
-from ..inputs import array, number
+from ..idempotency import HEADER, keyed, replayed
+from ..models import SceneSpec, SceneSummary, StateUpdate, StepAnswer, StepRequest
+from ..openapi import documented
 from ..scenes import (
-    STATE,
     LiveScene,
     apply_mesh_defaults,
     build_scene,
     pack_state,
-    parse_spec,
     restore_state,
     state_of,
 )
@@ -29,104 +28,174 @@ from .meshes import known_mesh
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
+IdempotencyKey = Annotated[
+    str | None,
+    Header(
+        alias=HEADER,
+        description="1-255 visible ASCII characters (a UUID): the request may be sent again"
+        " safely; a repeat gets the first answer (Idempotent-Replayed: true)",
+    ),
+]
 
-@router.post("")
-async def create_scene(request: Request, owner: str = Depends(owner_of)):
-    """``{"bodies": [{"mesh", "position", "orientation", "velocity", "angular_velocity",
-    "density" | "mass", "inertia" ((3, 3) or 3 principal moments; needs "mass"),
-    "center_of_mass" (mesh frame; needs "mass"), "epsilon" (a number, or "auto"), "fixed"}],
-    "planes": [{"point", "normal", "size"}], "gravity", "epsilon" (of the planes; absent:
-    the default rule), "dt", "scheme", "kernel", "max_halvings", "substeps" (split a step
-    that would move a body by more than its ε), "separation_speed" (m/s at which overlaps
-    present when bodies are placed are let go; default 0.5, null: at once),
-    "contact_model": {"law": "paper" | "linear" | "hertz", "stiffness", "damping",
-    "friction", "slip_velocity", "tangential_stiffness" (k_t/k_n of the static-friction
-    spring, default 2/7; 0: the regularised law)}}`` → 201 ``{"id", …, "mass_source",
-    "epsilon"}`` (per row: bodies, then planes). With an ``Idempotency-Key`` header the
-    request may be sent again safely (:mod:`service.idempotency`)."""
-    state = request.app.state
+
+@router.post(
+    "",
+    status_code=201,
+    summary="Create a scene of bodies (uploaded meshes) and planes",
+    **documented(
+        {201: (SceneSummary, "The scene, its state and each row's mass source and ε")},
+        (400, 401, 404, 406, 409, 413, 415, 422),
+        body=SceneSpec,
+    ),
+)
+async def create_scene(
+    request: Request,
+    owner: Owner,
+    settings: Config,
+    store: Storage,
+    engine: Engine,
+    scenes: Live,
+    spec_in: Annotated[SceneSpec, body(SceneSpec)],
+    idempotency_key: IdempotencyKey = None,
+):
+    """Bodies (``density`` or ``mass`` with optional ``inertia`` and ``center_of_mass``;
+    ``epsilon`` a number or ``"auto"``), planes, gravity, ``dt``, ``scheme``, ``kernel``,
+    ``max_halvings``, ``substeps`` (split a step that would move a body by more than its
+    ε), ``separation_speed`` (m/s at which overlaps present when bodies are placed are let
+    go; null: at once) and ``contact_model`` (``law``: paper, linear or hertz). Rows of the
+    state: bodies, then planes. With an ``Idempotency-Key`` the request may be sent again
+    safely (:mod:`service.idempotency`)."""
     raw = await request.body()
+    rows = len(spec_in.bodies) + len(spec_in.planes)
+    if rows > settings.max_bodies:
+        raise Unprocessable(
+            f"{rows:,} bodies and planes; this service takes <= {settings.max_bodies:,}"
+        )
     with keyed(request, owner, raw) as (key, again):
         if again is not None:
             return again
-        body = decode(raw, request.headers.get("content-type"))
-        spec = parse_spec(body, state.settings.max_bodies)
+        spec = spec_in.normalised()
         meshes = sorted({b["mesh"] for b in spec["bodies"]})
-        apply_mesh_defaults(spec, {m: known_mesh(request, owner, m) for m in meshes})
-        scene = await state.engine.run(
-            "build_scene", build_scene, spec, state.store.tree, state.settings.engine_threads
+        apply_mesh_defaults(spec, {m: await known_mesh(engine, store, owner, m) for m in meshes})
+        scene = await engine.run(
+            "build_scene", build_scene, spec, store.tree, settings.engine_threads
         )
         scene_id = uuid.uuid4().hex
         live = LiveScene(scene, spec, 0)
         answer = _summary(scene_id, live)
-        remember = None if key is None else key.remember(201, answer)
+        remember = None if key is None else key.remember(201, answer.model_dump())
         try:
-            gone = state.store.add_scene(owner, scene_id, spec, pack_state(scene), meshes, remember)
+            gone = await engine.io(
+                store.add_scene, owner, scene_id, spec, pack_state(scene), meshes, remember
+            )
         except KeyTaken:  # stored by a request in another process meanwhile
-            return replayed(request, state.store, owner, key)
+            return replayed(request, store, owner, key)
         if gone:  # deleted while the scene was being built
             raise Conflict(
                 f"mesh {gone[0]!r} was deleted while the scene was created; upload it again"
             )
-        state.scenes.add(owner, scene_id, live)
+        scenes.add(owner, scene_id, live)
     return respond(request, answer, 201)
 
 
-@router.get("/{scene_id}")
-async def get_scene(scene_id: str, request: Request, owner: str = Depends(owner_of)):
-    live = await _live(request, owner, scene_id)
+@router.get(
+    "/{scene_id}",
+    summary="A scene and its state",
+    **documented({200: (SceneSummary, "The scene")}, (401, 404, 406, 422)),
+)
+async def get_scene(scene_id: str, request: Request, owner: Owner, engine: Engine, scenes: Live):
+    live = await engine.run("load_scene", scenes.get, owner, scene_id)
     return respond(request, _summary(scene_id, live))
 
 
-@router.put("/{scene_id}/state")
-async def put_state(scene_id: str, request: Request, owner: str = Depends(owner_of)):
+@router.put(
+    "/{scene_id}/state",
+    summary="Overwrite any of the state arrays",
+    **documented(
+        {200: (SceneSummary, "The scene, with overlaps when positions or orientations changed")},
+        (400, 401, 404, 406, 413, 415, 422),
+        body=StateUpdate,
+    ),
+)
+async def put_state(
+    scene_id: str,
+    request: Request,
+    owner: Owner,
+    store: Storage,
+    engine: Engine,
+    scenes: Live,
+    update: Annotated[StateUpdate, body(StateUpdate)],
+):
     """Overwrite any of ``positions (n, 3)``, ``orientations (n, 4)``, ``velocities``,
     ``angular_velocities (n, 3)`` (n: bodies, then planes). The answer is the scene, with
     ``overlaps`` when positions or orientations were set (else null): ``pairs``, the body
     pairs whose surfaces now cross (overlap beyond the reach ε_a + ε_b), and ``largest``,
     the largest overlap of any contact relative to its pair's reach."""
-    state = request.app.state
-    body = decode(await request.body(), request.headers.get("content-type"))
-    if not isinstance(body, dict) or not set(body) & set(STATE):
-        raise Unprocessable(f"body must be an object with any of {list(STATE)}")
-    unknown = set(body) - set(STATE)
-    if unknown:
-        raise Unprocessable(f"unknown state fields {sorted(unknown)}; expected {list(STATE)}")
-    live = await _live(request, owner, scene_id)
+    live = await engine.run("load_scene", scenes.get, owner, scene_id)
     n = len(live.scene)
-    new = {k: array(v, k, (n, 4 if k == "orientations" else 3)) for k, v in body.items()}
+    new = update.given()
+    for name, value in new.items():
+        if len(value) != n:
+            shape = f"({n}, {value.shape[1]})"
+            message = f"must have shape {shape} (bodies, then planes), got {list(value.shape)}"
+            raise Unprocessable(f"{name} {message}", errors=[{"path": name, "message": message}])
 
     def apply():
         with live.lock:
             report = live.scene.set_state(**new)
-            if not state.store.save_state(owner, scene_id, pack_state(live.scene), live.steps):
+            if not store.save_state(owner, scene_id, pack_state(live.scene), live.steps):
                 raise NotFound(f"no scene {scene_id!r}")
             return report
 
-    report = await state.engine.run("set_state", apply)
+    report = await engine.run("set_state", apply)
     overlaps = None
     if report is not None:
         overlaps = {"pairs": report.pairs.tolist(), "largest": report.largest}
-    return respond(request, {**_summary(scene_id, live), "overlaps": overlaps})
+    return respond(request, _summary(scene_id, live, overlaps))
 
 
-@router.post("/{scene_id}/step")
-async def step_scene(scene_id: str, request: Request, owner: str = Depends(owner_of)):
-    """``{"steps": n, "dt"?}`` → the new state and each step's statistics. The state is
-    stored before the answer; a step that would leave a non-finite state is undone (422).
-    With an ``Idempotency-Key`` header the request may be sent again safely: the answer is
-    stored with the new state, in one transaction (:mod:`service.idempotency`)."""
-    state = request.app.state
+@router.post(
+    "/{scene_id}/step",
+    summary="Step a scene",
+    **documented(
+        {200: (StepAnswer, "The new state and each step's statistics")},
+        (400, 401, 404, 406, 409, 413, 415, 422),
+        body=StepRequest,
+        body_required=False,
+    ),
+)
+async def step_scene(
+    scene_id: str,
+    request: Request,
+    owner: Owner,
+    settings: Config,
+    store: Storage,
+    engine: Engine,
+    scenes: Live,
+    metrics: Meter,
+    idempotency_key: IdempotencyKey = None,
+):
+    """``{"steps": n, "dt"?}`` (no body: one step) → the new state and each step's
+    statistics. The state is stored before the answer; a step that would leave a
+    non-finite state is undone (422). With an ``Idempotency-Key`` header the request may be
+    sent again safely: the answer is stored with the new state, in one transaction."""
     raw = await request.body()
+    asked = (
+        await engine.io(validated, StepRequest, raw, request.headers.get("content-type"))
+        if raw
+        else StepRequest()
+    )
+    if asked.steps > settings.max_steps:
+        raise Unprocessable(
+            f"steps must be <= {settings.max_steps} (MRDEM_MAX_STEPS), got {asked.steps}",
+            errors=[{"path": "steps", "message": f"must be <= {settings.max_steps}"}],
+        )
     with keyed(request, owner, raw) as (key, again):
         if again is not None:
             return again
-        body = decode(raw, request.headers.get("content-type")) if raw else {}
-        if not isinstance(body, dict):
-            raise Unprocessable("body must be an object")
-        steps = number(body.get("steps", 1), "steps", 1, state.settings.max_steps, integer=True)
-        live = await _live(request, owner, scene_id)
-        dt = number(body.get("dt", live.spec["dt"]), "dt", 1e-12, 1.0)
+        live = await engine.run("load_scene", scenes.get, owner, scene_id)
+        steps = asked.steps
+        dt = live.spec["dt"] if asked.dt is None else asked.dt
 
         def run():
             with live.lock:
@@ -142,16 +211,16 @@ async def step_scene(scene_id: str, request: Request, owner: str = Depends(owner
                             " diverged); the scene keeps the state it had before this"
                             " request. Try a smaller dt or a softer contact model"
                         )
-                answer = {
-                    "id": scene_id,
-                    "time": scene.time,
-                    "steps": live.steps + steps,
-                    "state": state_of(scene),
-                    "stats": [dataclasses.asdict(s) for s in stats],
-                }
-                remember = None if key is None else key.remember(200, answer)
+                answer = StepAnswer(
+                    id=scene_id,
+                    time=scene.time,
+                    steps=live.steps + steps,
+                    state=state_of(scene),
+                    stats=stats,
+                )
+                remember = None if key is None else key.remember(200, answer.model_dump())
                 try:
-                    saved = state.store.save_state(
+                    saved = store.save_state(
                         owner, scene_id, pack_state(scene), live.steps + steps, remember
                     )
                 except KeyTaken:  # stored by a request in another process meanwhile
@@ -163,43 +232,42 @@ async def step_scene(scene_id: str, request: Request, owner: str = Depends(owner
                 live.steps += steps
                 return answer, stats
 
-        answer, stats = await state.engine.run("step", run)
+        answer, stats = await engine.run("step", run)
         if answer is None:
-            return replayed(request, state.store, owner, key)
-    m = state.metrics
-    m.steps.inc(steps)
-    m.picard.inc(sum(s.picard_iterations for s in stats))
-    m.comparisons.inc(sum(s.comparisons for s in stats))
-    m.fallbacks.inc(sum(s.fallbacks for s in stats))
-    return respond(request, answer)
+            return replayed(request, store, owner, key)
+    metrics.steps.inc(steps)
+    metrics.picard.inc(sum(s.picard_iterations for s in stats))
+    metrics.comparisons.inc(sum(s.comparisons for s in stats))
+    metrics.fallbacks.inc(sum(s.fallbacks for s in stats))
+    return await engine.io(respond, request, answer)
 
 
-@router.delete("/{scene_id}", status_code=204)
-async def delete_scene(scene_id: str, request: Request, owner: str = Depends(owner_of)):
-    state = request.app.state
-    if not state.store.delete_scene(owner, scene_id):
+@router.delete(
+    "/{scene_id}",
+    status_code=204,
+    summary="Delete a scene",
+    **documented({204: (None, "Deleted")}, (401, 404, 422)),
+)
+async def delete_scene(scene_id: str, owner: Owner, store: Storage, engine: Engine, scenes: Live):
+    if not await engine.io(store.delete_scene, owner, scene_id):
         raise NotFound(f"no scene {scene_id!r}")
-    state.scenes.drop(owner, scene_id)
+    scenes.drop(owner, scene_id)
     return Response(status_code=204)
 
 
-async def _live(request: Request, owner: str, scene_id: str) -> LiveScene:
-    state = request.app.state
-    return await state.engine.run("load_scene", state.scenes.get, owner, scene_id)
-
-
-def _summary(scene_id: str, live: LiveScene) -> dict:
+def _summary(scene_id: str, live: LiveScene, overlaps: dict | None = None) -> SceneSummary:
     spec = live.spec
-    return {
-        "id": scene_id,
-        "bodies": len(spec["bodies"]),
-        "planes": len(spec["planes"]),
-        "time": live.scene.time,
-        "steps": live.steps,
-        "dt": spec["dt"],
-        "scheme": spec["scheme"],
-        "state": state_of(live.scene),
-        "mass_source": live.scene.mass_source.tolist(),  # mesh | convex_hull | given | fixed
-        "epsilon": live.scene.epsilon,  # each row's ε, after the default rule
-        "spec": spec,
-    }
+    return SceneSummary(
+        id=scene_id,
+        bodies=len(spec["bodies"]),
+        planes=len(spec["planes"]),
+        time=live.scene.time,
+        steps=live.steps,
+        dt=spec["dt"],
+        scheme=spec["scheme"],
+        state=state_of(live.scene),
+        mass_source=live.scene.mass_source.tolist(),  # mesh | convex_hull | given | fixed
+        epsilon=live.scene.epsilon,  # each row's ε, after the default rule
+        spec=spec,
+        overlaps=overlaps,
+    )

@@ -1,0 +1,127 @@
+"""FastAPI dependencies: the app's parts (settings, store, engine runner, live scenes,
+tree banks, build jobs, metrics), the caller's owner, and request bodies decoded by media
+type and validated by their model, off the event loop."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import Depends, Request
+from fastapi.security import HTTPAuthorizationCredentials
+from pydantic import BaseModel, TypeAdapter, ValidationError
+
+from .auth import bearer, owner_of
+from .banks import BankCache
+from .builds import BuildJobs
+from .codecs import decode
+from .compute import EngineRunner
+from .errors import Unprocessable
+from .metrics import Metrics
+from .models.problems import field_errors, joined
+from .scenes import LiveScenes
+from .settings import Settings
+from .store import Store
+
+__all__ = [
+    "Banks",
+    "Builds",
+    "Config",
+    "Engine",
+    "Live",
+    "Meter",
+    "Owner",
+    "Storage",
+    "body",
+    "invalid",
+    "validated",
+]
+
+
+def _settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def _store(request: Request) -> Store:
+    return request.app.state.store
+
+
+def _engine(request: Request) -> EngineRunner:
+    return request.app.state.engine
+
+
+def _scenes(request: Request) -> LiveScenes:
+    return request.app.state.scenes
+
+
+def _banks(request: Request) -> BankCache:
+    return request.app.state.banks
+
+
+def _builds(request: Request) -> BuildJobs:
+    return request.app.state.builds
+
+
+def _metrics(request: Request) -> Metrics:
+    return request.app.state.metrics
+
+
+Config = Annotated[Settings, Depends(_settings)]
+Storage = Annotated[Store, Depends(_store)]
+Engine = Annotated[EngineRunner, Depends(_engine)]
+Live = Annotated[LiveScenes, Depends(_scenes)]
+Banks = Annotated[BankCache, Depends(_banks)]
+Builds = Annotated[BuildJobs, Depends(_builds)]
+Meter = Annotated[Metrics, Depends(_metrics)]
+
+
+def _owner(
+    settings: Config,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
+) -> str:
+    return owner_of(settings.api_keys, credentials)
+
+
+Owner = Annotated[str, Depends(_owner)]
+
+
+def invalid(error: ValidationError, prefix: str = "") -> Unprocessable:
+    """A 422 problem naming each invalid field (``errors``: path and message)."""
+    errors = field_errors(error.errors(include_url=False))
+    if prefix:
+        for e in errors:
+            e["path"] = f"{prefix}.{e['path']}" if e["path"] else prefix
+    detail = joined(errors)
+    return Unprocessable(detail, errors=errors)
+
+
+def validated(kind: Any, raw: bytes, content_type: str | None) -> Any:
+    """``raw`` decoded by its media type (:func:`service.codecs.decode`), validated as
+    ``kind`` (a model or an annotated union); 400/415 for a body that cannot be decoded,
+    422 naming the invalid fields."""
+    value = decode(raw, content_type)
+    try:
+        if isinstance(kind, type) and issubclass(kind, BaseModel):
+            return kind.model_validate(value)
+        return _adapter(kind).validate_python(value)
+    except ValidationError as error:
+        raise invalid(error) from None
+
+
+_ADAPTERS: dict[int, TypeAdapter] = {}
+
+
+def _adapter(kind: Any) -> TypeAdapter:
+    if id(kind) not in _ADAPTERS:
+        _ADAPTERS[id(kind)] = TypeAdapter(kind)
+    return _ADAPTERS[id(kind)]
+
+
+def body(kind: Any):
+    """A dependency: the request body as ``kind``, decoded and validated in a worker
+    thread (a large JSON body takes a while to parse)."""
+
+    async def parsed(request: Request, engine: Engine) -> Any:
+        raw = await request.body()
+        return await engine.io(validated, kind, raw, request.headers.get("content-type"))
+
+    return Depends(parsed)
