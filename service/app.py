@@ -65,6 +65,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version="0.1.0",
         summary="Multiresolution DEM: contacts and rigid-body steps for triangulated meshes",
         lifespan=lifespan,
+        generate_unique_id_function=lambda route: route.name,  # operationId: the function
     )
     app.state.settings = settings
     app.state.metrics = metrics = Metrics()
@@ -74,7 +75,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.warmup_error = None
     app.state.warmup_seconds = None
     install_handlers(app)
-    install_openapi(app)
+    install_openapi(
+        app,
+        {
+            k: getattr(settings, k)
+            for k in ("max_steps", "max_pairs", "max_bodies", "max_triangles")
+        },
+    )
     for module in (health, jobs, meshes, contacts, scenes):  # jobs before /v1/meshes/{id}
         app.include_router(module.router)
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)

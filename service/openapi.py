@@ -126,8 +126,10 @@ def documented(
     return {"responses": responses, "openapi_extra": extra}
 
 
-def install(app: FastAPI) -> None:
-    """Make ``app.openapi()`` add every request and answer model to the components."""
+def install(app: FastAPI, limits: dict[str, int]) -> None:
+    """Make ``app.openapi()`` add every request and answer model to the components, with
+    this service's ``limits`` (``max_steps``, ``max_pairs``, ``max_bodies``,
+    ``max_triangles``: its settings) as the schemas' bounds."""
 
     def openapi() -> dict:
         if app.openapi_schema is not None:
@@ -146,7 +148,21 @@ def install(app: FastAPI) -> None:
         missing = {m.__name__ for m in REQUESTS + RESPONSES} - set(components)
         if missing:  # a name pydantic suffixed (-Input/-Output): the refs above would dangle
             raise RuntimeError(f"models missing from the OpenAPI components: {sorted(missing)}")
+        _bound(components, limits)
         app.openapi_schema = document
         return document
 
     app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _bound(schemas: dict, limits: dict[str, int]) -> None:
+    """The settings' limits as ``maximum`` / ``maxItems`` of the fields they bound."""
+    steps = schemas["StepRequest"]["properties"]["steps"]
+    steps["maximum"] = limits["max_steps"]
+    for name, field in (("SceneSpec", "bodies"), ("SceneSpec", "planes")):
+        schemas[name]["properties"][field]["maxItems"] = limits["max_bodies"]
+    schemas["PerPairQuery"]["properties"]["pairs"]["maxItems"] = limits["max_pairs"]
+    columns = ("a", "b", "position_a", "orientation_a", "position_b", "orientation_b")
+    for field in columns:
+        schemas["ColumnarQuery"]["properties"][field]["maxItems"] = limits["max_pairs"]
+    schemas["MeshUpload"]["properties"]["faces"]["maxItems"] = limits["max_triangles"]

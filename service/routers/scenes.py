@@ -34,6 +34,7 @@ IdempotencyKey = Annotated[
         alias=HEADER,
         description="1-255 visible ASCII characters (a UUID): the request may be sent again"
         " safely; a repeat gets the first answer (Idempotent-Replayed: true)",
+        json_schema_extra={"pattern": "^[!-~]{1,255}$"},
     ),
 ]
 
