@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import os
 
-import httpx
 import pytest
-from harness import ServiceProcess
+from harness import InProcessService, ServiceProcess
 from hypothesis import settings
 
 # Both on Hypothesis' "default" profile explicitly: registering takes the current default as
@@ -37,13 +36,21 @@ settings.load_profile("ci" if in_ci() else "dev")
 
 @pytest.fixture(scope="session")
 def service(tmp_path_factory):
-    """One running service for the tests that only need a server."""
-    process = ServiceProcess(tmp_path_factory.mktemp("service") / "data").start()
-    yield process
-    process.stop()
+    """The real app in this process (through ``httpx.ASGITransport``) for the tests that
+    only need a server: ``service.client()``, or ``transport=service.transport``."""
+    with InProcessService(tmp_path_factory.mktemp("service") / "data") as app:
+        yield app
+
+
+@pytest.fixture(scope="session")
+def live_service(tmp_path_factory):
+    """One real uvicorn process, for the tests whose callers need a socket (subprocesses,
+    a proxy, a generated client against a live server)."""
+    with ServiceProcess(tmp_path_factory.mktemp("live") / "data") as process:
+        yield process
 
 
 @pytest.fixture()
 def http(service):
-    with httpx.Client(base_url=service.url, timeout=120.0) as client:
+    with service.client(timeout=120.0) as client:
         yield client

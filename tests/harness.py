@@ -1,10 +1,14 @@
-"""Test harness for the service and the clients: a real uvicorn process of the service on
-a free loopback port with its store in a temporary directory (kernels load from the shared
-Numba cache; :mod:`mrdem_common.serving` starts it), and helpers for msgpack bodies and RFC 9457
-problems."""
+"""Test harness for the service and the clients: the real app in this process behind
+``httpx.ASGITransport`` (:class:`InProcessService`: most tests), a real uvicorn process of
+the service on a free loopback port (:class:`ServiceProcess`: where the process is the
+point — readiness, kill -9, the container command, subprocess clients, concurrency), each
+with its store in a temporary directory (kernels load from the shared Numba cache), and
+helpers for msgpack bodies and RFC 9457 problems."""
 
 from __future__ import annotations
 
+import asyncio
+import threading
 import time
 from pathlib import Path
 
@@ -12,7 +16,9 @@ import httpx
 import numpy as np
 
 from mrdem_common import serving
+from service.app import create_app
 from service.codecs import MSGPACK, decode, encode_msgpack
+from service.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]
 READY_TIMEOUT = 600.0  # a fresh kernel cache compiles everything first
@@ -31,6 +37,92 @@ class ServiceProcess(serving.ServiceProcess):
             log_dir=Path(data_dir).parent,
             ready_timeout=READY_TIMEOUT,
         )
+
+
+class InProcessService:
+    """The real app (:func:`service.app.create_app`, the real SQLite store in ``data_dir``)
+    in this process: its lifespan runs in an event loop on a thread of its own, and
+    requests reach it through ``httpx.ASGITransport`` inside that loop — from sync clients
+    (:attr:`transport`) and async ones (:attr:`async_transport`) alike. ``settings`` by field
+    name, as :class:`ServiceProcess` takes them. Kernels were warmed by ``mrdem warmup``
+    before the tests; the app's own warm-up is off unless asked for."""
+
+    url = "http://mrdem.test"
+
+    def __init__(self, data_dir: Path, **settings) -> None:
+        self.data_dir = Path(data_dir)
+        settings.setdefault("warmup", False)
+        self.settings = Settings(data_dir=self.data_dir, **settings)
+        self.app = create_app(self.settings)
+        self.loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self.loop.run_forever, name="app", daemon=True)
+        self._lifespan = None
+        self.transport = _LoopTransport(self)
+        self.async_transport = _AsyncLoopTransport(self)
+
+    def start(self) -> InProcessService:
+        self._thread.start()
+        self._lifespan = self.app.router.lifespan_context(self.app)
+        self.run(self._lifespan.__aenter__())
+        return self
+
+    def run(self, coroutine, timeout: float = 600.0):
+        """``coroutine``'s result, run in the app's loop."""
+        return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(timeout)
+
+    def stop(self) -> None:
+        if self._lifespan is not None:
+            self.run(self._lifespan.__aexit__(None, None, None))
+            self._lifespan = None
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(10)
+        self.loop.close()
+
+    def client(self, **kwargs) -> httpx.Client:
+        return httpx.Client(base_url=self.url, transport=self.transport, **kwargs)
+
+    def async_client(self, **kwargs) -> httpx.AsyncClient:
+        return httpx.AsyncClient(base_url=self.url, transport=self.async_transport, **kwargs)
+
+    def __enter__(self) -> InProcessService:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+async def _asgi_call(app, request: httpx.Request, content: bytes) -> tuple:
+    inner = httpx.ASGITransport(app=app)
+    forwarded = httpx.Request(request.method, request.url, headers=request.headers, content=content)
+    response = await inner.handle_async_request(forwarded)
+    return response.status_code, response.headers.multi_items(), await response.aread()
+
+
+class _LoopTransport(httpx.BaseTransport):
+    """A sync transport: each request runs through ``httpx.ASGITransport`` in the app's
+    loop."""
+
+    def __init__(self, service: InProcessService) -> None:
+        self.service = service
+
+    def handle_request(self, request: httpx.Request) -> httpx.Response:
+        content = request.read()
+        status, headers, body = self.service.run(_asgi_call(self.service.app, request, content))
+        return httpx.Response(status, headers=headers, content=body, request=request)
+
+
+class _AsyncLoopTransport(httpx.AsyncBaseTransport):
+    """The async transport: the same, awaited from the caller's loop."""
+
+    def __init__(self, service: InProcessService) -> None:
+        self.service = service
+
+    async def handle_async_request(self, request: httpx.Request) -> httpx.Response:
+        content = await request.aread()
+        call = _asgi_call(self.service.app, request, content)
+        future = asyncio.run_coroutine_threadsafe(call, self.service.loop)
+        status, headers, body = await asyncio.wrap_future(future)
+        return httpx.Response(status, headers=headers, content=body, request=request)
 
 
 def tetrahedron() -> dict:

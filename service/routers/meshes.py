@@ -265,27 +265,31 @@ async def _from_form(request: Request, limit: int) -> tuple[bytes, str, dict]:
         raise
     except Exception as exc:  # the multipart parser's own errors: a malformed body
         raise BadRequest(f"malformed multipart body: {exc}") from None
-    upload = form.get("file")
-    if upload is None or isinstance(upload, str):
-        raise Unprocessable("multipart upload needs a 'file' part")
-    suffix = PurePath(upload.filename or "").suffix.lower().lstrip(".")
-    file_type = (form.get("file_type") or suffix or "").lower()
-    if file_type not in FILE_TYPES:
-        raise Unprocessable(
-            f"cannot tell the format of {upload.filename!r}: name the file *.stl, *.obj, *.ply,"
-            f" *.off, *.glb or *.gltf, or send a 'file_type' field (one of {', '.join(FILE_TYPES)})"
-        )
-    data = await upload.read()
-    if not data:
-        raise Unprocessable(f"the uploaded file {upload.filename!r} is empty")
-    fields = {
-        k: form[k] for k in ("epsilon", "branching", "strict") if form.get(k) not in (None, "")
-    }
     try:
-        chosen = MeshForm.model_validate(fields)
-    except ValidationError as error:
-        raise invalid(error) from None
-    options = {k: v for k, v in chosen.model_dump().items() if v is not None}
+        upload = form.get("file")
+        if upload is None or isinstance(upload, str):
+            raise Unprocessable("multipart upload needs a 'file' part")
+        suffix = PurePath(upload.filename or "").suffix.lower().lstrip(".")
+        file_type = (form.get("file_type") or suffix or "").lower()
+        if file_type not in FILE_TYPES:
+            raise Unprocessable(
+                f"cannot tell the format of {upload.filename!r}: name the file *.stl, *.obj,"
+                " *.ply, *.off, *.glb or *.gltf, or send a 'file_type' field (one of"
+                f" {', '.join(FILE_TYPES)})"
+            )
+        data = await upload.read()
+        if not data:
+            raise Unprocessable(f"the uploaded file {upload.filename!r} is empty")
+        fields = {
+            k: form[k] for k in ("epsilon", "branching", "strict") if form.get(k) not in (None, "")
+        }
+        try:
+            chosen = MeshForm.model_validate(fields)
+        except ValidationError as error:
+            raise invalid(error) from None
+        options = {k: v for k, v in chosen.model_dump().items() if v is not None}
+    finally:
+        await form.close()  # the spooled temporary file of the part
     return data, file_type, options
 
 

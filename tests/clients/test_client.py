@@ -14,7 +14,7 @@ from engine import Pose, build_tree, find_contacts_batch, shapes
 
 @pytest.fixture()
 def client(service):
-    with Client(service.url, timeout=120) as c:
+    with Client(service.url, timeout=120, transport=service.transport) as c:
         yield c
 
 
@@ -72,7 +72,7 @@ def test_precision_is_the_services_default_unless_asked(client):
 @pytest.mark.parametrize("wire", ["msgpack", "json"])
 def test_a_remote_scene_loop(service, wire):
     mesh = shapes.icosphere(2, radius=0.5)
-    with Client(service.url, wire=wire) as client:
+    with Client(service.url, wire=wire, transport=service.transport) as client:
         ball = client.upload_mesh((mesh.vertices, mesh.faces), epsilon=0.01)
         scene = client.create_scene(
             bodies=[{"mesh": ball, "position": [0, 0, 0.56]}],
@@ -126,7 +126,7 @@ def test_the_async_client(service):
     mesh = shapes.icosphere(1, radius=0.5)
 
     async def main():
-        async with AsyncClient(service.url) as client:
+        async with AsyncClient(service.url, transport=service.async_transport) as client:
             info = await client.upload_mesh((mesh.vertices, mesh.faces), epsilon=0.02)
             found = await client.contacts([(info, None, info, [0.99, 0.0, 0.0])])
             scene = await client.create_scene(

@@ -8,8 +8,8 @@ from clients import demo
 from mrdem_common.serving import readyz
 
 
-def test_demo_writes_csv_png_and_vtk(service, tmp_path, capsys):
-    assert demo.main(["--url", service.url, "--steps", "200", "--out", str(tmp_path)]) == 0
+def test_demo_writes_csv_png_and_vtk(live_service, tmp_path, capsys):
+    assert demo.main(["--url", live_service.url, "--steps", "200", "--out", str(tmp_path)]) == 0
     rows = np.genfromtxt(tmp_path / "particle_on_plane.csv", delimiter=",", names=True)
     assert len(rows) == 200 and rows["time"][-1] == np.float64(0.2)
     assert rows["contacts"].max() > 0 and rows["converged"].all()  # it landed

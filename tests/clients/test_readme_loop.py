@@ -8,9 +8,9 @@ from pathlib import Path
 README = Path(__file__).resolve().parents[2] / "README.md"
 
 
-def test_readme_remote_loop(service, monkeypatch, capsys):
+def test_readme_remote_loop(live_service, monkeypatch, capsys):
     (block,) = re.findall(r"```python remote\n(.*?)```", README.read_text(), re.S)
-    monkeypatch.setenv("MRDEM_URL", service.url)
+    monkeypatch.setenv("MRDEM_URL", live_service.url)
     namespace: dict = {}
     exec(compile(block, str(README), "exec"), namespace)  # noqa: S102
     state = namespace["state"]

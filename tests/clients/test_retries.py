@@ -205,17 +205,17 @@ def _plane() -> list[dict]:
     return [{"point": [0, 0, 0], "normal": [0, 0, 1], "size": 4.0}]
 
 
-def test_a_connection_dropped_after_the_service_acted_creates_and_steps_once(service):
+def test_a_connection_dropped_after_the_service_acted_creates_and_steps_once(live_service):
     """The connection of the first create and the first step is dropped after the service
     created or stepped the scene; the client sends each again with its key and gets the
     first answer: one scene, stepped once, the same state as an undisturbed run."""
-    proxy = DropOnce(service.url, [("/v1/scenes", "/v1/scenes"), ("/v1/scenes/", "/step")])
+    proxy = DropOnce(live_service.url, [("/v1/scenes", "/v1/scenes"), ("/v1/scenes/", "/step")])
     try:
         with Client(proxy.url, retries=3, backoff=0.01) as client:
             scene = client.create_scene(_bodies(client), planes=_plane(), dt=1e-3)
             stepped = scene.step(4)
             assert stepped.steps == 4 and scene.state.steps == 4
-        with Client(service.url) as direct:
+        with Client(live_service.url) as direct:
             again = direct.create_scene(_bodies(direct), planes=_plane(), dt=1e-3).step(4)
         np.testing.assert_array_equal(stepped.positions, again.positions)
         creates = [f for f in proxy.forwarded if f[:2] == ("POST", "/v1/scenes")]
@@ -226,8 +226,8 @@ def test_a_connection_dropped_after_the_service_acted_creates_and_steps_once(ser
         proxy.close()
 
 
-def test_the_async_client_sends_a_keyed_call_again_too(service):
-    proxy = DropOnce(service.url, [("/v1/scenes/", "/step")])
+def test_the_async_client_sends_a_keyed_call_again_too(live_service):
+    proxy = DropOnce(live_service.url, [("/v1/scenes/", "/step")])
 
     async def main():
         async with AsyncClient(proxy.url, retries=3, backoff=0.01) as client:

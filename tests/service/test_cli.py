@@ -18,14 +18,14 @@ def test_bench_runs_each_script_and_counts_failures(tmp_path, capsys):
     assert "kernels: ok" in out and "trees: FAILED (3)" in out and "1/2 benchmarks" in out
 
 
-def test_upload_runs_the_client_program(service, tmp_path, capfd):
+def test_upload_runs_the_client_program(live_service, tmp_path, capfd):
     """``mrdem upload`` is the client's program in its own process (service never imports
     clients): it uploads, waits and prints the mesh."""
     path = tmp_path / "box.obj"
     trimesh.creation.box(extents=(1.0, 2.0, 0.5)).export(path)
-    assert main(["upload", str(path), "--url", service.url, "--epsilon", "0.01"]) == 0
+    assert main(["upload", str(path), "--url", live_service.url, "--epsilon", "0.01"]) == 0
     out = capfd.readouterr().out
     assert "box.obj: " in out and "12 triangles" in out and "watertight" in out
     missing = tmp_path / "missing.stl"
-    assert main(["upload", str(missing), "--url", service.url]) == 1
+    assert main(["upload", str(missing), "--url", live_service.url]) == 1
     assert "missing.stl" in capfd.readouterr().out

@@ -11,11 +11,10 @@ from engine import Pose, build_tree, find_contacts_batch, shapes
 
 @pytest.fixture(scope="module")
 def spheres(service):
-    import httpx
 
     meshes = {"small": shapes.icosphere(2, radius=0.5), "large": shapes.icosphere(3, radius=1.0)}
     ids, trees = {}, {}
-    with httpx.Client(base_url=service.url, timeout=120) as client:
+    with service.client(timeout=120) as client:
         for name, mesh in meshes.items():
             payload = {
                 "vertices": mesh.vertices.tolist(),

@@ -88,11 +88,11 @@ def test_the_limits_of_the_settings_are_in_the_schemas(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def generated(service, tmp_path_factory):
+def generated(live_service, tmp_path_factory):
     """The package openapi-python-client generates from the live service's document."""
     directory = tmp_path_factory.mktemp("generated")
     spec = directory / "openapi.json"
-    spec.write_text(httpx.get(f"{service.url}/openapi.json").text)
+    spec.write_text(httpx.get(f"{live_service.url}/openapi.json").text)
     config = directory / "config.yaml"
     config.write_text("post_hooks: []\n")  # no formatter run over the generated files
     command = [sys.executable, "-m", "openapi_python_client", "generate", "--path", str(spec)]
@@ -108,8 +108,12 @@ def generated(service, tmp_path_factory):
             del sys.modules[name]
 
 
-def test_a_generated_client_uploads_queries_and_steps(generated, service, http):
-    with generated.AuthenticatedClient(base_url=service.url, token="no-keys") as client:
+def test_a_generated_client_uploads_queries_and_steps(generated, live_service):
+    url = live_service.url
+    with (
+        generated.AuthenticatedClient(base_url=url, token="no-keys") as client,
+        httpx.Client(base_url=url, timeout=60) as http,
+    ):
         _round_trip(client, http)
 
 
