@@ -5,6 +5,10 @@
    (``engine.find_contacts_batch``); medians and minima of interleaved repeats.
 2. 8 concurrent clients sending 10-pair contact requests for a fixed time: requests/s and
    p50 / p99 latency.
+3. ``/healthz`` latency (p50 / p99 / max, one probe every 20 ms) alone, and while uploads
+   (an 81,920-triangle mesh as JSON and as msgpack, each with a new ε: a tree build each),
+   long steps (200 steps of a 24-body scene a request) and 1,000-pair contact batches run
+   (issue 17: nothing blocks the event loop).
 
 Starts its own server (``python -m service``) on a free port with a temporary store.
 Writes ``bench-results/service.json``.
@@ -184,25 +188,128 @@ def concurrency(url: str, mesh, seconds: float, workers: int = 8) -> dict:
     return out
 
 
+def probe(url: str, stop: threading.Event, every: float = 0.02) -> np.ndarray:
+    """``/healthz`` latencies (s), one request every ``every`` seconds until ``stop``."""
+    seen = []
+    with httpx.Client(base_url=url, timeout=30) as client:
+        while not stop.is_set():
+            start = time.perf_counter()
+            assert client.get("/healthz").status_code == 200
+            seen.append(time.perf_counter() - start)
+            time.sleep(every)
+    return np.array(seen)
+
+
+def _latency(seen: np.ndarray) -> dict:
+    return {
+        "probes": len(seen),
+        "p50_ms": float(np.percentile(seen, 50) * 1e3),
+        "p99_ms": float(np.percentile(seen, 99) * 1e3),
+        "max_ms": float(seen.max() * 1e3),
+    }
+
+
+def healthz_under_load(url: str, seconds: float) -> dict:
+    """``/healthz`` alone, then beside uploads, long steps and contact batches."""
+    stop = threading.Event()
+    quiet: list[np.ndarray] = []
+    prober = threading.Thread(target=lambda: quiet.append(probe(url, stop)))
+    prober.start()
+    time.sleep(min(seconds, 5.0))
+    stop.set()
+    prober.join()
+
+    big = shapes.icosphere(6, radius=0.5)  # 81,920 triangles
+    ball = shapes.icosphere(2, radius=0.05)
+    counts = {"uploads": 0, "steps": 0, "contacts": 0}
+    stop = threading.Event()
+
+    def uploads():
+        k = 0
+        with httpx.Client(base_url=url, timeout=600) as http, Client(url, timeout=600) as client:
+            while not stop.is_set():
+                k += 1
+                epsilon = 0.004 + 1e-6 * k  # a new tree every time
+                if k % 2:
+                    body = {"vertices": big.vertices.tolist(), "faces": big.faces.tolist()}
+                    answer = http.post("/v1/meshes", json={**body, "epsilon": epsilon})
+                    assert answer.status_code in (200, 201, 202), answer.text
+                else:
+                    client.upload_mesh((big.vertices, big.faces), epsilon=epsilon, wait=False)
+                counts["uploads"] += 1
+
+    def steps():
+        with Client(url, timeout=600) as client:
+            info = client.upload_mesh((ball.vertices, ball.faces), epsilon=0.005)
+            grid = [
+                [0.12 * (i % 4), 0.12 * (i // 4 % 3), 0.06 + 0.12 * (i // 12)] for i in range(24)
+            ]
+            scene = client.create_scene(
+                [{"mesh": info.id, "position": p} for p in grid],
+                planes=[{"point": [0, 0, 0], "normal": [0, 0, 1]}],
+                dt=1e-3,
+                scheme="implicit-midpoint",
+            )
+            while not stop.is_set():
+                scene.step(200)
+                counts["steps"] += 200
+
+    def contacts():
+        with Client(url, timeout=600) as client:
+            info = client.upload_mesh((ball.vertices, ball.faces), epsilon=0.005)
+            pairs = [(info, None, info, (0.1 * p, q)) for p, q in poses(1000, seed=3)]
+            while not stop.is_set():
+                client.contacts(pairs)
+                counts["contacts"] += 1
+
+    loaded: list[np.ndarray] = []
+    workers = [threading.Thread(target=f) for f in (uploads, steps, contacts)]
+    for w in workers:
+        w.start()
+    time.sleep(2.0)  # the load under way
+    prober = threading.Thread(target=lambda: loaded.append(probe(url, stop)))
+    prober.start()
+    time.sleep(seconds)
+    stop.set()
+    for w in [*workers, prober]:
+        w.join()
+    out = {"alone": _latency(quiet[0]), "loaded": _latency(loaded[0]), **counts}
+    for name in ("alone", "loaded"):
+        r = out[name]
+        print(
+            f"\n== /healthz {name}: p50 {r['p50_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms,"
+            f" max {r['max_ms']:.1f} ms ({r['probes']} probes)"
+        )
+    print(
+        f"   load: {counts['uploads']} uploads of 81,920 triangles, {counts['steps']} steps"
+        f" of 24 bodies, {counts['contacts']} batches of 1,000 pairs in {seconds:.0f} s"
+    )
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--only", choices=("batch", "concurrency", "healthz"), default=None)
     args = parser.parse_args()
     OUT.mkdir(exist_ok=True)
     mesh = shapes.icosphere(3, radius=0.5)
     with tempfile.TemporaryDirectory() as tmp:
         proc, url = start_server(Path(tmp) / "data")
         try:
-            results = {
-                "batch": batch_overhead(url, mesh, 3 if args.quick else 25),
-                "concurrency": concurrency(url, mesh, 3.0 if args.quick else 15.0),
-                "cpu_count": os.cpu_count(),
+            parts = {
+                "batch": lambda: batch_overhead(url, mesh, 3 if args.quick else 25),
+                "concurrency": lambda: concurrency(url, mesh, 3.0 if args.quick else 15.0),
+                "healthz": lambda: healthz_under_load(url, 10.0 if args.quick else 40.0),
             }
+            results = {k: f() for k, f in parts.items() if args.only in (None, k)}
+            results["cpu_count"] = os.cpu_count()
         finally:
             proc.terminate()
             proc.wait(30)
-    (OUT / "service.json").write_text(json.dumps(results, indent=2))
-    print(f"wrote {OUT / 'service.json'}")
+    name = "service.json" if args.only is None else f"service-{args.only}.json"
+    (OUT / name).write_text(json.dumps(results, indent=2))
+    print(f"wrote {OUT / name}")
 
 
 if __name__ == "__main__":

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import hashlib
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager, contextmanager
 from dataclasses import dataclass
 
 from fastapi import Request
@@ -115,14 +115,14 @@ class InFlight:
                 self._keys.discard(slot)
 
 
-@contextmanager
-def keyed(
-    request: Request, owner: str, body: bytes
-) -> Iterator[tuple[Key | None, Response | None]]:
+@asynccontextmanager
+async def keyed(
+    request: Request, owner: str, body: bytes, store, engine
+) -> AsyncIterator[tuple[Key | None, Response | None]]:
     """Around a request that changes state: its :class:`Key` (None without the header),
     held in the app's :class:`InFlight` while the block runs, and the stored answer of the
-    key's first request (None if there is none: the block does the work)."""
-    state = request.app.state
-    key = key_of(request, body)
-    with state.in_flight.claim(owner, key):
-        yield key, replayed(request, state.store, owner, key)
+    key's first request (None if there is none: the block does the work). The store is
+    read off the event loop (``engine.io``)."""
+    key = await engine.io(key_of, request, body)  # hashes the body
+    with request.app.state.in_flight.claim(owner, key):
+        yield key, await engine.io(replayed, request, store, owner, key)

@@ -8,6 +8,7 @@ from .contacts import (
     ColumnarContacts,
     ColumnarQuery,
     ContactsQuery,
+    ContactStatsOut,
     PerPairContacts,
     PerPairQuery,
 )
@@ -40,6 +41,7 @@ __all__ = [
     "BuildJob",
     "ColumnarContacts",
     "ColumnarQuery",
+    "ContactStatsOut",
     "ContactsQuery",
     "FieldError",
     "JobList",

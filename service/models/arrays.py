@@ -72,7 +72,9 @@ class Shape:
             raw = value if isinstance(value, np.ndarray) else np.asarray(value)
         except (ValueError, TypeError, OverflowError):
             raise PydanticCustomError("array_type", f"must be {expected}") from None
-        if raw.dtype.kind not in kinds:
+        if raw.size == 0 and raw.ndim == 1 and len(self.shape) > 1 and None not in self.shape[1:]:
+            raw = raw.reshape((0, *self.shape[1:]))  # JSON's [] of (0, 3): no row to say so
+        if raw.dtype.kind not in kinds and raw.size:
             raise PydanticCustomError("array_type", f"must be {expected}")
         if raw.ndim != len(self.shape) or any(
             s is not None and s != n for s, n in zip(self.shape, raw.shape, strict=True)
@@ -81,8 +83,8 @@ class Shape:
                 "array_shape",
                 f"must have shape {shape_text(self.shape)}, got {list(raw.shape)}",
             )
-        try:
-            out = raw.astype(np.int64 if self.integer else np.float64)
+        try:  # no copy when the array has the dtype already (msgpack's typed binary)
+            out = np.asarray(raw, np.int64 if self.integer else np.float64)
         except OverflowError:
             raise PydanticCustomError("array_type", f"must be {expected}") from None
         if not self.integer and not np.isfinite(out).all():

@@ -79,7 +79,8 @@ async def list_jobs(
     engine: Engine,
     limit: Annotated[int, Query(ge=1, le=MAX_LISTED, description="newest jobs listed")] = 100,
 ):
-    return respond(request, await engine.io(_jobs, store, builds, owner, limit))
+    jobs = await engine.io(_jobs, store, builds, owner, limit)
+    return await engine.io(respond, request, jobs)
 
 
 def _job(store, builds, owner: str, job_id: str) -> BuildJob:
@@ -99,4 +100,4 @@ async def get_job(
 ):
     job = await engine.io(_job, store, builds, owner, job_id)
     headers = {"Retry-After": POLL_AFTER} if job.status in ACTIVE else None
-    return respond(request, job, headers=headers)
+    return await engine.io(respond, request, job, 200, headers)

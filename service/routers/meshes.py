@@ -124,7 +124,9 @@ async def upload_mesh(
     extra = {"repair": mesh.repair.summary(), "epsilon_given": options.get("epsilon") is not None}
     facts = await engine.io(store.mesh, owner, mesh_id)
     if facts is not None:
-        return respond(request, MeshFacts(**{**facts, "repair": extra["repair"]}), 200)
+        return await engine.io(
+            respond, request, MeshFacts(**{**facts, "repair": extra["repair"]}), 200
+        )
     if await engine.io(store.tree_path(mesh_id).exists):  # built for another owner or a scene
         try:
             tree = await engine.run("load_tree", store.tree, mesh_id)
@@ -139,7 +141,9 @@ async def upload_mesh(
             if created is not None:  # None: the tree file went meanwhile: build it again
                 if not created:
                     facts = await engine.io(store.mesh, owner, mesh_id)
-                return respond(request, MeshFacts(**facts), 201 if created else 200)
+                return await engine.io(
+                    respond, request, MeshFacts(**facts), 201 if created else 200
+                )
     spec = {
         "epsilon": epsilon,
         "branching": branching,
@@ -157,12 +161,12 @@ async def upload_mesh(
         if facts is None:
             raise Conflict(f"mesh {mesh_id!r} was deleted while its upload waited for the build")
         facts = MeshFacts(**{**facts, "repair": extra["repair"]})
-        return respond(request, facts, 201 if submitted.added else 200)
+        return await engine.io(respond, request, facts, 201 if submitted.added else 200)
     if job["status"] == "failed":
         raise _failure(job)
     view = await engine.io(job_view, store, builds, owner, job)
     headers = {"Location": job_location(job["id"]), "Retry-After": POLL_AFTER}
-    return respond(request, view, 202, headers=headers)
+    return await engine.io(respond, request, view, 202, headers)
 
 
 @router.get(
@@ -172,7 +176,7 @@ async def upload_mesh(
 )
 async def list_meshes(request: Request, owner: Owner, store: Storage, engine: Engine):
     meshes = await engine.io(store.meshes, owner)
-    return respond(request, MeshList(meshes=meshes))
+    return await engine.io(respond, request, MeshList(meshes=meshes))
 
 
 @router.get(
@@ -181,7 +185,8 @@ async def list_meshes(request: Request, owner: Owner, store: Storage, engine: En
     **documented({200: (MeshFacts, "The mesh")}, (401, 404, 406, 422)),
 )
 async def get_mesh(mesh_id: str, request: Request, owner: Owner, store: Storage, engine: Engine):
-    return respond(request, MeshFacts(**await known_mesh(engine, store, owner, mesh_id)))
+    facts = MeshFacts(**await known_mesh(engine, store, owner, mesh_id))
+    return await engine.io(respond, request, facts)
 
 
 @router.delete(

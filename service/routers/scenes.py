@@ -72,7 +72,7 @@ async def create_scene(
         raise Unprocessable(
             f"{rows:,} bodies and planes; this service takes <= {settings.max_bodies:,}"
         )
-    with keyed(request, owner, raw) as (key, again):
+    async with keyed(request, owner, raw, store, engine) as (key, again):
         if again is not None:
             return again
         spec = spec_in.normalised()
@@ -90,13 +90,13 @@ async def create_scene(
                 store.add_scene, owner, scene_id, spec, pack_state(scene), meshes, remember
             )
         except KeyTaken:  # stored by a request in another process meanwhile
-            return replayed(request, store, owner, key)
+            return await engine.io(replayed, request, store, owner, key)
         if gone:  # deleted while the scene was being built
             raise Conflict(
                 f"mesh {gone[0]!r} was deleted while the scene was created; upload it again"
             )
         scenes.add(owner, scene_id, live)
-    return respond(request, answer, 201)
+    return await engine.io(respond, request, answer, 201)
 
 
 @router.get(
@@ -106,7 +106,7 @@ async def create_scene(
 )
 async def get_scene(scene_id: str, request: Request, owner: Owner, engine: Engine, scenes: Live):
     live = await engine.run("load_scene", scenes.get, owner, scene_id)
-    return respond(request, _summary(scene_id, live))
+    return await engine.io(respond, request, _summary(scene_id, live))
 
 
 @router.put(
@@ -152,7 +152,7 @@ async def put_state(
     overlaps = None
     if report is not None:
         overlaps = {"pairs": report.pairs.tolist(), "largest": report.largest}
-    return respond(request, _summary(scene_id, live, overlaps))
+    return await engine.io(respond, request, _summary(scene_id, live, overlaps))
 
 
 @router.post(
@@ -191,7 +191,7 @@ async def step_scene(
             f"steps must be <= {settings.max_steps} (MRDEM_MAX_STEPS), got {asked.steps}",
             errors=[{"path": "steps", "message": f"must be <= {settings.max_steps}"}],
         )
-    with keyed(request, owner, raw) as (key, again):
+    async with keyed(request, owner, raw, store, engine) as (key, again):
         if again is not None:
             return again
         live = await engine.run("load_scene", scenes.get, owner, scene_id)
@@ -235,7 +235,7 @@ async def step_scene(
 
         answer, stats = await engine.run("step", run)
         if answer is None:
-            return replayed(request, store, owner, key)
+            return await engine.io(replayed, request, store, owner, key)
     metrics.steps.inc(steps)
     metrics.picard.inc(sum(s.picard_iterations for s in stats))
     metrics.comparisons.inc(sum(s.comparisons for s in stats))
