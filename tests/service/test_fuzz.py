@@ -98,7 +98,9 @@ def _schemathesis(service, config: Path, examples: int, *selection: str) -> str:
         "SCHEMATHESIS_HOOKS": "fuzz_hooks",
         "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent), str(ROOT)]),
     }
-    run = subprocess.run(command, env=env, capture_output=True, text=True, timeout=1500)
+    run = subprocess.run(  # in the config's directory: schemathesis keeps its cache there
+        command, env=env, cwd=config.parent, capture_output=True, text=True, timeout=1500
+    )
     return "" if run.returncode == 0 else run.stdout[-6000:] + run.stderr[-2000:]
 
 
