@@ -80,6 +80,30 @@ def _example(model: type[BaseModel]) -> Any:
     return examples[0] if examples else None
 
 
+def _problem_example(status: int) -> dict:
+    if status == 422:
+        return _example(models.Problem)
+    return {
+        "type": "about:blank",
+        "title": _TITLES[status],
+        "status": status,
+        "detail": _PHRASES[status].split(":")[0],
+    }
+
+
+_TITLES = {
+    400: "Bad Request",
+    401: "Unauthorized",
+    404: "Not Found",
+    406: "Not Acceptable",
+    409: "Conflict",
+    413: "Content Too Large",
+    415: "Unsupported Media Type",
+    422: "Unprocessable Content",
+    503: "Service Unavailable",
+}
+
+
 def documented(
     success: dict[int, tuple[Any, str]],
     problems: tuple[int, ...],
@@ -98,7 +122,8 @@ def documented(
         answer: dict = {"description": text}
         if model is not None:
             schema = {"oneOf": [_ref(m) for m in model]} if isinstance(model, list) else _ref(model)
-            answer["content"] = _content(schema)
+            first = model[0] if isinstance(model, list) else model
+            answer["content"] = _content(schema, _example(first))
         if status == 202:
             answer["headers"] = {
                 "Location": {"description": "the build job", "schema": {"type": "string"}},
@@ -108,7 +133,7 @@ def documented(
     for status in problems:
         responses[status] = {
             "description": _PHRASES[status],
-            "content": _content(_ref(models.Problem), problem=True),
+            "content": _content(_ref(models.Problem), _problem_example(status), problem=True),
         }
         if status in (409, 503):
             responses[status]["headers"] = _RETRY_AFTER

@@ -140,6 +140,23 @@ ContactsQuery = Annotated[
 ]
 
 
+_STATS = {
+    "pairs": 1,
+    "contacts": 1,
+    "comparisons": 16,
+    "iterative": 16,
+    "fallbacks": 0,
+    "sphere_pruned": 0,
+    "seconds": 0.0004,
+}
+_ONE = {
+    "points": [[0.5, 0.25, 0.99]],
+    "normals": [[0.0, 0.0, 1.0]],
+    "overlaps": [0.012],
+    "pairs": [[3, 0]],
+}
+
+
 class ContactStatsOut(BaseModel):
     pairs: int
     contacts: int
@@ -153,6 +170,12 @@ class ContactStatsOut(BaseModel):
 class ColumnarContacts(BaseModel):
     """Pair q owns contact rows ``offsets[q]:offsets[q + 1]`` and face-pair rows
     ``pair_offsets[q]:pair_offsets[q + 1]``."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [{"offsets": [0, 1], "pair_offsets": [0, 1], **_ONE, "stats": _STATS}]
+        }
+    )
 
     offsets: Offsets = Field(description="(n + 1,)")
     points: Points = Field(description="(c, 3) world frame")
@@ -171,5 +194,9 @@ class PairContacts(BaseModel):
 
 
 class PerPairContacts(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"results": [_ONE], "stats": _STATS}]}
+    )
+
     results: list[PairContacts]
     stats: ContactStatsOut

@@ -92,8 +92,61 @@ class RepairSummary(BaseModel):
     zero_area_faces_first: list[int]
 
 
+_REPAIR = {
+    "changed": False,
+    "merge_tolerance": 1e-9,
+    "area_tolerance": 1e-18,
+    "input_vertices": 4,
+    "input_faces": 4,
+    "vertices": 4,
+    "faces": 4,
+    "merged_vertices": 0,
+    "merged_vertices_first": [],
+    "unreferenced_vertices": 0,
+    "unreferenced_vertices_first": [],
+    "repeated_index_faces": 0,
+    "repeated_index_faces_first": [],
+    "zero_area_faces": 0,
+    "zero_area_faces_first": [],
+}
+_FACTS = {
+    "id": "3f1c0d9a6b2e4c5d8e7f60718293a4b5",
+    "triangles": 4,
+    "vertices": 4,
+    "epsilon": 0.01,
+    "branching": 8,
+    "levels": 1,
+    "nodes": 4,
+    "nodes_per_level": [4],
+    "bounds": [[0, 0, 0], [1, 1, 1]],
+    "watertight": True,
+    "volume": 0.16666666666666666,
+    "repair": _REPAIR,
+    "epsilon_given": True,
+}
+_JOB = {
+    "id": "9b8a7c6d5e4f40312233445566778899",
+    "status": "building",
+    "mesh": _FACTS["id"],
+    "location": "/v1/meshes/jobs/9b8a7c6d5e4f40312233445566778899",
+    "triangles": 81920,
+    "vertices": 40962,
+    "epsilon": 0.004,
+    "branching": 8,
+    "progress": {"levels": 3, "nodes": 4681},
+    "seconds": None,
+    "error": None,
+    "cause": None,
+    "created": 1795000000.0,
+    "updated": 1795000002.5,
+    "repair": _REPAIR,
+}
+
+
 class MeshFacts(BaseModel):
     """A stored mesh and its surrogate tree."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [_FACTS]})
 
     id: str = Field(description="content id: the repaired mesh, ε, branching, tree format")
     triangles: int
@@ -111,6 +164,8 @@ class MeshFacts(BaseModel):
 
 
 class MeshList(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"meshes": [_FACTS]}]})
+
     meshes: list[MeshFacts]
 
 
@@ -122,6 +177,8 @@ class JobProgress(BaseModel):
 class BuildJob(BaseModel):
     """A tree build of an upload."""
 
+    model_config = ConfigDict(json_schema_extra={"examples": [_JOB]})
+
     id: str
     status: Literal["queued", "building", "done", "failed"]
     mesh: str = Field(description="the mesh id the build makes")
@@ -131,9 +188,9 @@ class BuildJob(BaseModel):
     epsilon: float
     branching: int
     progress: JobProgress
-    seconds: float | None = Field(description="build time, once finished")
-    error: str | None = Field(description="why it failed")
-    cause: str | None = Field(description="engine | memory | cancelled | crashed | server")
+    seconds: float | None = Field(None, description="build time, once finished")
+    error: str | None = Field(None, description="why it failed")
+    cause: str | None = Field(None, description="engine | memory | cancelled | crashed | server")
     created: float = Field(description="Unix time")
     updated: float = Field(description="Unix time")
     repair: RepairSummary | None = None
@@ -142,11 +199,28 @@ class BuildJob(BaseModel):
 
 
 class JobList(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"jobs": [_JOB]}]})
+
     jobs: list[BuildJob]
 
 
 class SurrogateLevel(BaseModel):
     """The surrogate triangles of one tree level."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "id": _FACTS["id"],
+                    "level": 0,
+                    "levels": 1,
+                    "triangles": [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]],
+                    "epsilon": [0.01],
+                    "leaf": [True],
+                }
+            ]
+        }
+    )
 
     id: str
     level: int

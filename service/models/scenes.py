@@ -332,7 +332,55 @@ class OverlapsOut(BaseModel):
     largest: float = Field(description="largest overlap relative to its pair's reach")
 
 
+_STATE = {
+    "positions": [[0.0, 0.0, 0.5], [0.0, 0.0, 0.0]],
+    "orientations": [[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]],
+    "velocities": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
+    "angular_velocities": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
+}
+_STEP = {
+    "scheme": "implicit-midpoint",
+    "dt": 0.001,
+    "converged": True,
+    "picard_iterations": 3,
+    "evaluations": 1,
+    "body_pairs": 1,
+    "contacts": 4,
+    "triangle_pairs": 6,
+    "comparisons": 120,
+    "iterative": 120,
+    "fallbacks": 0,
+    "sphere_pruned": 8,
+    "unfoldings": 12,
+    "folds": 0,
+    "listed": 0,
+    "max_overlap": 0.08,
+    "elastic_energy": 0.0004,
+    "halvings": 0,
+    "seconds": 0.0012,
+    "travel": 0.1,
+    "substeps": 1,
+    "sleeping": 0,
+}
+_SCENE = {
+    "id": "5d41402abc4b2a76b9719d911017c592",
+    "bodies": 1,
+    "planes": 1,
+    "time": 0.0,
+    "steps": 0,
+    "dt": 0.001,
+    "scheme": "implicit-midpoint",
+    "state": _STATE,
+    "mass_source": ["mesh", "fixed"],
+    "epsilon": [0.01, 0.001],
+    "spec": {"bodies": [{"mesh": "3f1c0d9a6b2e4c5d8e7f60718293a4b5"}], "planes": [{}]},
+    "overlaps": None,
+}
+
+
 class SceneSummary(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [_SCENE]})
+
     id: str
     bodies: int
     planes: int
@@ -350,6 +398,14 @@ class SceneSummary(BaseModel):
 
 
 class StepAnswer(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {"id": _SCENE["id"], "time": 0.001, "steps": 1, "state": _STATE, "stats": [_STEP]}
+            ]
+        }
+    )
+
     id: str
     time: float
     steps: int = Field(description="steps taken since creation")

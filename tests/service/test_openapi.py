@@ -15,6 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from harness import tetrahedron
+from jsonschema import Draft202012Validator
 from openapi_spec_validator import validate
 
 from service.app import create_app
@@ -77,6 +78,38 @@ def test_every_v1_operation_documents_its_body_its_answers_and_its_problems(docu
             assert "example" in content["application/json"], where
             assert "415" in problems and "413" in problems and "422" in problems, where
     assert "HTTPValidationError" not in document["components"]["schemas"]
+
+
+def _examples(document):
+    """Every example of the document with the schema it claims to fit."""
+    for name, schema in document["components"]["schemas"].items():
+        for example in schema.get("examples", []):
+            yield f"components {name}", {"$ref": f"#/components/schemas/{name}"}, example
+    for path, method, operation in _operations(document):
+        bodies = [("request", operation.get("requestBody", {}))]
+        bodies += [(status, r) for status, r in operation["responses"].items()]
+        for status, part in bodies:
+            for media, content in part.get("content", {}).items():
+                if "example" in content:
+                    where = f"{method.upper()} {path} {status} {media}"
+                    yield where, content["schema"], content["example"]
+
+
+def test_every_example_fits_its_schema_and_every_v1_answer_has_one(document):
+    checked = 0
+    for where, schema, example in _examples(document):
+        validator = Draft202012Validator({**schema, "components": document["components"]})
+        errors = [e.message for e in validator.iter_errors(example)]
+        assert not errors, (where, errors)
+        checked += 1
+    for path, method, operation in _operations(document):
+        if not path.startswith("/v1/"):
+            continue
+        for status, answer in operation["responses"].items():
+            for media, content in answer.get("content", {}).items():
+                if media != "application/msgpack":
+                    assert "example" in content, (method, path, status, media)
+    assert checked > 90
 
 
 def test_the_limits_of_the_settings_are_in_the_schemas(tmp_path):
