@@ -14,7 +14,7 @@ import engine
 from .banks import BankCache
 from .builds import BuildJobs
 from .codecs import BodyLimit
-from .compute import EngineRunner
+from .compute import EngineRunner, Warmup
 from .errors import install_handlers
 from .idempotency import InFlight
 from .metrics import Metrics
@@ -53,7 +53,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.warmup:
             threading.Thread(target=_warm, args=(app.state,), name="warmup", daemon=True).start()
         else:
-            app.state.ready.set()
+            app.state.warmup.ready.set()
         try:
             yield
         finally:
@@ -70,10 +70,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.metrics = metrics = Metrics()
     app.state.engine = EngineRunner(settings.engine_concurrency, metrics)
-    app.state.ready = threading.Event()
+    app.state.warmup = Warmup()
     app.state.in_flight = InFlight()  # Idempotency-Keys whose first request is running
-    app.state.warmup_error = None
-    app.state.warmup_seconds = None
     install_handlers(app)
     install_openapi(
         app,
@@ -101,9 +99,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 def _warm(state) -> None:
     try:
-        state.warmup_seconds = engine.warmup(state.settings.warmup_workers)
-        log.info("kernels ready in %.1f s", state.warmup_seconds)
-        state.ready.set()
+        state.warmup.seconds = engine.warmup(state.settings.warmup_workers)
+        log.info("kernels ready in %.1f s", state.warmup.seconds)
+        state.warmup.ready.set()
     except Exception as exc:  # reported by /readyz; the process stays up for diagnosis
         log.exception("kernel warm-up failed")
-        state.warmup_error = f"{type(exc).__name__}: {exc}"
+        state.warmup.error = f"{type(exc).__name__}: {exc}"

@@ -11,14 +11,25 @@ in any number of request threads; the limiter only bounds how many run at once.
 from __future__ import annotations
 
 import functools
+import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import anyio
 import anyio.to_thread
 
-__all__ = ["EngineRunner"]
+__all__ = ["EngineRunner", "Warmup"]
+
+
+@dataclass
+class Warmup:
+    """The kernel warm-up's outcome: ``ready`` once done, ``error`` if it failed."""
+
+    ready: threading.Event = field(default_factory=threading.Event)
+    error: str | None = None
+    seconds: float | None = None
 
 
 class EngineRunner:

@@ -14,8 +14,9 @@ from .auth import bearer, owner_of
 from .banks import BankCache
 from .builds import BuildJobs
 from .codecs import decode
-from .compute import EngineRunner
+from .compute import EngineRunner, Warmup
 from .errors import Unprocessable
+from .idempotency import InFlight
 from .metrics import Metrics
 from .models.problems import field_errors, joined
 from .scenes import LiveScenes
@@ -27,10 +28,12 @@ __all__ = [
     "Builds",
     "Config",
     "Engine",
+    "Held",
     "Live",
     "Meter",
     "Owner",
     "Storage",
+    "Warming",
     "body",
     "invalid",
     "validated",
@@ -65,6 +68,14 @@ def _metrics(request: Request) -> Metrics:
     return request.app.state.metrics
 
 
+def _warmup(request: Request) -> Warmup:
+    return request.app.state.warmup
+
+
+def _in_flight(request: Request) -> InFlight:
+    return request.app.state.in_flight
+
+
 Config = Annotated[Settings, Depends(_settings)]
 Storage = Annotated[Store, Depends(_store)]
 Engine = Annotated[EngineRunner, Depends(_engine)]
@@ -72,6 +83,8 @@ Live = Annotated[LiveScenes, Depends(_scenes)]
 Banks = Annotated[BankCache, Depends(_banks)]
 Builds = Annotated[BuildJobs, Depends(_builds)]
 Meter = Annotated[Metrics, Depends(_metrics)]
+Warming = Annotated[Warmup, Depends(_warmup)]
+Held = Annotated[InFlight, Depends(_in_flight)]
 
 
 def _owner(

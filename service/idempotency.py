@@ -117,12 +117,12 @@ class InFlight:
 
 @asynccontextmanager
 async def keyed(
-    request: Request, owner: str, body: bytes, store, engine
+    request: Request, owner: str, body: bytes, store, engine, in_flight: InFlight
 ) -> AsyncIterator[tuple[Key | None, Response | None]]:
     """Around a request that changes state: its :class:`Key` (None without the header),
-    held in the app's :class:`InFlight` while the block runs, and the stored answer of the
-    key's first request (None if there is none: the block does the work). The store is
-    read off the event loop (``engine.io``)."""
+    held in ``in_flight`` (the app's :class:`InFlight`) while the block runs, and the
+    stored answer of the key's first request (None if there is none: the block does the
+    work). The store is read off the event loop (``engine.io``)."""
     key = await engine.io(key_of, request, body)  # hashes the body
-    with request.app.state.in_flight.claim(owner, key):
+    with in_flight.claim(owner, key):
         yield key, await engine.io(replayed, request, store, owner, key)

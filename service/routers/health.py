@@ -3,11 +3,12 @@ the store reachable), ``/metrics`` (Prometheus)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST
 from pydantic import BaseModel
 
+from ..deps import Engine, Meter, Storage, Warming
 from ..errors import PROBLEM, NotReady
 
 router = APIRouter(tags=["health"])
@@ -45,15 +46,14 @@ async def healthz():
         },
     },
 )
-async def readyz(request: Request):
-    state = request.app.state
-    if state.warmup_error is not None:
-        raise NotReady(f"kernel warm-up failed: {state.warmup_error}")
-    if not state.ready.is_set():
+async def readyz(warmup: Warming, store: Storage, engine: Engine):
+    if warmup.error is not None:
+        raise NotReady(f"kernel warm-up failed: {warmup.error}")
+    if not warmup.ready.is_set():
         raise NotReady("compiling kernels", {"Retry-After": "5"})
-    if not await state.engine.io(state.store.ping):
+    if not await engine.io(store.ping):
         raise NotReady("the store does not answer", {"Retry-After": "5"})
-    return JSONResponse({"status": "ready", "warmup_seconds": state.warmup_seconds})
+    return JSONResponse({"status": "ready", "warmup_seconds": warmup.seconds})
 
 
 @router.get(
@@ -67,5 +67,5 @@ async def readyz(request: Request):
         }
     },
 )
-async def metrics(request: Request):
-    return Response(request.app.state.metrics.exposition(), media_type=CONTENT_TYPE_LATEST)
+async def metrics(meter: Meter):
+    return Response(meter.exposition(), media_type=CONTENT_TYPE_LATEST)

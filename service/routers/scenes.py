@@ -10,7 +10,7 @@ from fastapi import APIRouter, Header, Request
 from fastapi.responses import Response
 
 from ..codecs import respond
-from ..deps import Config, Engine, Live, Meter, Owner, Storage, body, validated
+from ..deps import Config, Engine, Held, Live, Meter, Owner, Storage, body, validated
 from ..errors import Conflict, NotFound, Unprocessable
 from ..idempotency import HEADER, keyed, replayed
 from ..models import SceneSpec, SceneSummary, StateUpdate, StepAnswer, StepRequest
@@ -56,6 +56,7 @@ async def create_scene(
     store: Storage,
     engine: Engine,
     scenes: Live,
+    held: Held,
     spec_in: Annotated[SceneSpec, body(SceneSpec)],
     idempotency_key: IdempotencyKey = None,
 ):
@@ -72,7 +73,7 @@ async def create_scene(
         raise Unprocessable(
             f"{rows:,} bodies and planes; this service takes <= {settings.max_bodies:,}"
         )
-    async with keyed(request, owner, raw, store, engine) as (key, again):
+    async with keyed(request, owner, raw, store, engine, held) as (key, again):
         if again is not None:
             return again
         spec = spec_in.normalised()
@@ -174,6 +175,7 @@ async def step_scene(
     engine: Engine,
     scenes: Live,
     metrics: Meter,
+    held: Held,
     idempotency_key: IdempotencyKey = None,
 ):
     """``{"steps": n, "dt"?}`` (no body: one step) → the new state and each step's
@@ -191,7 +193,7 @@ async def step_scene(
             f"steps must be <= {settings.max_steps} (MRDEM_MAX_STEPS), got {asked.steps}",
             errors=[{"path": "steps", "message": f"must be <= {settings.max_steps}"}],
         )
-    async with keyed(request, owner, raw, store, engine) as (key, again):
+    async with keyed(request, owner, raw, store, engine, held) as (key, again):
         if again is not None:
             return again
         live = await engine.run("load_scene", scenes.get, owner, scene_id)

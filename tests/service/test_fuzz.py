@@ -127,4 +127,4 @@ def test_fuzzed_api_has_no_server_error_and_keeps_its_contract(fuzzed):
 
 @pytest.mark.slow
 def test_fuzzed_api_longer(fuzzed):
-    _fuzz(fuzzed, examples=200, least=5000)
+    _fuzz(fuzzed, examples=200, least=4000)
