@@ -107,29 +107,20 @@ def invalid(error: ValidationError, prefix: str = "") -> Unprocessable:
     return Unprocessable(detail, errors=errors)
 
 
-def validated(kind: Any, raw: bytes, content_type: str | None) -> Any:
+def validated(kind: type[BaseModel] | TypeAdapter, raw: bytes, content_type: str | None) -> Any:
     """``raw`` decoded by its media type (:func:`service.codecs.decode`), validated as
-    ``kind`` (a model or an annotated union); 400/415 for a body that cannot be decoded,
-    422 naming the invalid fields."""
+    ``kind`` (a model, or a ``TypeAdapter`` of a union); 400/415 for a body that cannot be
+    decoded, 422 naming the invalid fields."""
     value = decode(raw, content_type)
     try:
-        if isinstance(kind, type) and issubclass(kind, BaseModel):
-            return kind.model_validate(value)
-        return _adapter(kind).validate_python(value)
+        if isinstance(kind, TypeAdapter):
+            return kind.validate_python(value)
+        return kind.model_validate(value)
     except ValidationError as error:
         raise invalid(error) from None
 
 
-_ADAPTERS: dict[int, TypeAdapter] = {}
-
-
-def _adapter(kind: Any) -> TypeAdapter:
-    if id(kind) not in _ADAPTERS:
-        _ADAPTERS[id(kind)] = TypeAdapter(kind)
-    return _ADAPTERS[id(kind)]
-
-
-def body(kind: Any):
+def body(kind: type[BaseModel] | TypeAdapter):
     """A dependency: the request body as ``kind``, decoded and validated in a worker
     thread (a large JSON body takes a while to parse)."""
 

@@ -5,6 +5,7 @@ arrays)."""
 
 from .arrays import QUATERNION_TOLERANCE, Shape
 from .contacts import (
+    CONTACTS_QUERY,
     ColumnarContacts,
     ColumnarQuery,
     ContactsQuery,
@@ -34,6 +35,7 @@ from .scenes import (
 )
 
 __all__ = [
+    "CONTACTS_QUERY",
     "LAWS",
     "MAX_BRANCHING",
     "QUATERNION_TOLERANCE",

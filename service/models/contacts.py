@@ -6,13 +6,22 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    TypeAdapter,
+    model_validator,
+)
 
 from engine import DEFAULT_PRECISION, KERNELS, PRECISIONS
 
 from .arrays import Indices, Points, Quaternion, Quaternions, Shape, Vector3
 
 __all__ = [
+    "CONTACTS_QUERY",
     "ColumnarContacts",
     "ColumnarQuery",
     "ContactStatsOut",
@@ -138,6 +147,7 @@ ContactsQuery = Annotated[
     Annotated[ColumnarQuery, Tag("columnar")] | Annotated[PerPairQuery, Tag("per_pair")],
     Discriminator(_layout),
 ]
+CONTACTS_QUERY = TypeAdapter(ContactsQuery)  # validates either layout
 
 
 _STATS = {

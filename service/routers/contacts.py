@@ -30,9 +30,9 @@ from ..codecs import respond
 from ..deps import Banks, Config, Engine, Meter, Owner, Storage, body
 from ..errors import Unprocessable
 from ..models import (
+    CONTACTS_QUERY,
     ColumnarContacts,
     ColumnarQuery,
-    ContactsQuery,
     ContactStatsOut,
     PerPairContacts,
     PerPairQuery,
@@ -60,7 +60,7 @@ async def contacts(
     engine: Engine,
     banks: Banks,
     metrics: Meter,
-    query: Annotated[ColumnarQuery | PerPairQuery, body(ContactsQuery)],
+    query: Annotated[ColumnarQuery | PerPairQuery, body(CONTACTS_QUERY)],
 ):
     """The contacts of n posed pairs of uploaded meshes, columnar (CSR) or per pair."""
     columnar = isinstance(query, ColumnarQuery)

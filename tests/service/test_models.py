@@ -18,9 +18,9 @@ from mrdem_common.codec import JSON, MSGPACK, packb
 from service.deps import validated
 from service.errors import Unprocessable
 from service.models import (
+    CONTACTS_QUERY,
     QUATERNION_TOLERANCE,
     ColumnarQuery,
-    ContactsQuery,
     PerPairQuery,
     SceneSpec,
     Shape,
@@ -142,25 +142,25 @@ def _columns(n: int, rng) -> dict:
 @pytest.mark.parametrize("n", [1, 7, 100])
 def test_json_and_msgpack_bodies_validate_to_the_same_query(n):
     body = _columns(n, np.random.default_rng(n))
-    as_json = validated(ContactsQuery, json.dumps(body, default=np.ndarray.tolist).encode(), JSON)
-    as_msgpack = validated(ContactsQuery, packb(body), MSGPACK)
+    as_json = validated(CONTACTS_QUERY, json.dumps(body, default=np.ndarray.tolist).encode(), JSON)
+    as_msgpack = validated(CONTACTS_QUERY, packb(body), MSGPACK)
     assert isinstance(as_json, ColumnarQuery) and isinstance(as_msgpack, ColumnarQuery)
     for name in ("a", "b", "position_a", "orientation_a", "position_b", "orientation_b"):
         np.testing.assert_array_equal(getattr(as_json, name), getattr(as_msgpack, name))
     assert as_json.kernel == as_msgpack.kernel == "exact"
     pairs = {"pairs": [{"a": "m0", "b": "m1", "pose_b": {"position": [0, 0, 1]}}]}
-    assert isinstance(validated(ContactsQuery, packb(pairs), MSGPACK), PerPairQuery)
+    assert isinstance(validated(CONTACTS_QUERY, packb(pairs), MSGPACK), PerPairQuery)
 
 
 def test_columns_must_agree_with_each_other():
     body = _columns(3, np.random.default_rng(0))
     body["position_b"] = body["position_b"][:2]
     with pytest.raises(Unprocessable, match="position_b must have 3 rows"):
-        validated(ContactsQuery, packb(body), MSGPACK)
+        validated(CONTACTS_QUERY, packb(body), MSGPACK)
     body = _columns(3, np.random.default_rng(0))
     body["b"] = np.array([0, 1, 2])
     with pytest.raises(Unprocessable, match=r"b holds indices outside meshes \(0 … 1\)"):
-        validated(ContactsQuery, packb(body), MSGPACK)
+        validated(CONTACTS_QUERY, packb(body), MSGPACK)
 
 
 vectors = st.lists(finite, min_size=3, max_size=3)
