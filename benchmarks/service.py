@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from clients import Client  # noqa: E402
 from engine import Pose, TreeBank, build_tree, find_contacts_batch, shapes  # noqa: E402
+from mrdem_common.malloc import keep_large_blocks  # noqa: E402
 
 OUT = ROOT / "bench-results"
 
@@ -288,6 +289,7 @@ def healthz_under_load(url: str, seconds: float) -> dict:
 
 
 def main() -> None:
+    keep_large_blocks()  # as the service does (MRDEM_KEEP_LARGE_BLOCKS): the in-process side too
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--only", choices=("batch", "concurrency", "healthz"), default=None)

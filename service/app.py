@@ -10,6 +10,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, Request
 
 import engine
+from mrdem_common.malloc import keep_large_blocks
 
 from .banks import BankCache
 from .builds import BuildJobs
@@ -37,6 +38,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        if settings.keep_large_blocks and not keep_large_blocks():
+            log.info("MRDEM_KEEP_LARGE_BLOCKS: not glibc, the allocator keeps its defaults")
         app.state.store = Store(
             settings.data_dir, settings.tree_cache, settings.idempotency_retention
         )

@@ -1,4 +1,5 @@
-"""FastAPI dependencies: the app's parts (settings, store, engine runner, live scenes,
+"""FastAPI dependencies (``async def``: FastAPI would run a plain ``def`` in a worker thread,
+a thread hop for each): the app's parts (settings, store, engine runner, live scenes,
 tree banks, build jobs, metrics), the caller's owner, and request bodies decoded by media
 type and validated by their model, off the event loop."""
 
@@ -40,39 +41,39 @@ __all__ = [
 ]
 
 
-def _settings(request: Request) -> Settings:
+async def _settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def _store(request: Request) -> Store:
+async def _store(request: Request) -> Store:
     return request.app.state.store
 
 
-def _engine(request: Request) -> EngineRunner:
+async def _engine(request: Request) -> EngineRunner:
     return request.app.state.engine
 
 
-def _scenes(request: Request) -> LiveScenes:
+async def _scenes(request: Request) -> LiveScenes:
     return request.app.state.scenes
 
 
-def _banks(request: Request) -> BankCache:
+async def _banks(request: Request) -> BankCache:
     return request.app.state.banks
 
 
-def _builds(request: Request) -> BuildJobs:
+async def _builds(request: Request) -> BuildJobs:
     return request.app.state.builds
 
 
-def _metrics(request: Request) -> Metrics:
+async def _metrics(request: Request) -> Metrics:
     return request.app.state.metrics
 
 
-def _warmup(request: Request) -> Warmup:
+async def _warmup(request: Request) -> Warmup:
     return request.app.state.warmup
 
 
-def _in_flight(request: Request) -> InFlight:
+async def _in_flight(request: Request) -> InFlight:
     return request.app.state.in_flight
 
 
@@ -87,7 +88,7 @@ Warming = Annotated[Warmup, Depends(_warmup)]
 Held = Annotated[InFlight, Depends(_in_flight)]
 
 
-def _owner(
+async def _owner(
     settings: Config,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> str:

@@ -63,6 +63,12 @@ class Settings(BaseSettings):
         ge=0.0,
         description="seconds a finished build job stays readable (0: forever)",
     )
+    keep_large_blocks: bool = Field(
+        True,
+        description="keep freed blocks below 32 MiB in the allocator's heap for reuse instead of"
+        " returning them to the system (glibc; mrdem_common.malloc): no page faults for every"
+        " array a request makes",
+    )
     idempotency_retention: float = Field(
         24 * 3600.0,
         ge=0.0,

@@ -10,6 +10,7 @@ from .contacts import (
     ColumnarQuery,
     ContactsQuery,
     ContactStatsOut,
+    PairContacts,
     PerPairContacts,
     PerPairQuery,
 )
@@ -51,6 +52,7 @@ __all__ = [
     "MeshForm",
     "MeshList",
     "MeshUpload",
+    "PairContacts",
     "PerPairContacts",
     "PerPairQuery",
     "Problem",

@@ -34,11 +34,12 @@ from ..models import (
     ColumnarContacts,
     ColumnarQuery,
     ContactStatsOut,
+    PairContacts,
     PerPairContacts,
     PerPairQuery,
 )
 from ..openapi import documented
-from .meshes import known_mesh
+from .meshes import known
 
 router = APIRouter(prefix="/v1", tags=["contacts"])
 
@@ -69,31 +70,33 @@ async def contacts(
     if n > settings.max_pairs:
         most = settings.max_pairs
         raise Unprocessable(f"{n:,} pairs in one request; this service takes <= {most:,}")
-    for mesh_id in meshes:
-        await known_mesh(engine, store, owner, mesh_id)
-    start = time.perf_counter()
-    if query.hierarchy:
-        bank = await engine.run("load_trees", banks.get, tuple(meshes), query.precision)
-        batch = await engine.run(
-            "contacts",
-            bank.find_contacts,
-            *columns,
-            kernel=query.kernel,
-            threads=settings.engine_threads,
-        )
-        found = _from_batch(batch)
-    else:
-        trees = [await engine.run("load_tree", store.tree, m) for m in meshes]
-        found = await engine.run("contacts", _flat, trees, columns, query.kernel, query.precision)
-    found["stats"]["seconds"] = time.perf_counter() - start
-    _count(metrics, found["stats"])
-    # the engine's arrays as they are (typed and finite by construction): not validated again
-    if columnar:
+
+    def search():  # one worker-thread call: the meshes' check, the search, the encoding
+        for mesh_id in meshes:
+            known(store, owner, mesh_id)
+        start = time.perf_counter()
+        if query.hierarchy:
+            bank = banks.get(tuple(meshes), query.precision)
+            batch = bank.find_contacts(
+                *columns, kernel=query.kernel, threads=settings.engine_threads
+            )
+            found = _from_batch(batch)
+        else:
+            trees = [store.tree(m) for m in meshes]
+            found = _flat(trees, columns, query.kernel, query.precision)
+        found["stats"]["seconds"] = time.perf_counter() - start
         stats = ContactStatsOut(**found.pop("stats"))
-        answer = ColumnarContacts.model_construct(**found, stats=stats)
-    else:
-        answer = PerPairContacts(results=_split(found), stats=found["stats"])
-    return await engine.io(respond, request, answer)
+        # the engine's arrays as they are (typed and finite by construction): not validated
+        if columnar:
+            answer = ColumnarContacts.model_construct(**found, stats=stats)
+        else:
+            results = [PairContacts.model_construct(**r) for r in _split(found)]
+            answer = PerPairContacts.model_construct(results=results, stats=stats)
+        return stats, respond(request, answer)
+
+    stats, response = await engine.run("contacts", search)
+    _count(metrics, stats)
+    return response
 
 
 def _columns(query: ColumnarQuery | PerPairQuery) -> tuple[list[str], tuple]:
@@ -177,8 +180,8 @@ def _split(found: dict) -> list[dict]:
     ]
 
 
-def _count(metrics, stats: dict) -> None:
-    metrics.contact_pairs.inc(stats["pairs"])
-    metrics.comparisons.inc(stats["comparisons"])
-    metrics.iterative.inc(stats["iterative"])
-    metrics.fallbacks.inc(stats["fallbacks"])
+def _count(metrics, stats: ContactStatsOut) -> None:
+    metrics.contact_pairs.inc(stats.pairs)
+    metrics.comparisons.inc(stats.comparisons)
+    metrics.iterative.inc(stats.iterative)
+    metrics.fallbacks.inc(stats.fallbacks)

@@ -239,12 +239,13 @@ async def surrogates(
 
 
 async def known_mesh(engine, store, owner: str, mesh_id: str) -> dict:
+    """:func:`known` off the event loop."""
+    return await engine.io(known, store, owner, mesh_id)
+
+
+def known(store, owner: str, mesh_id: str) -> dict:
     """The facts of ``owner``'s mesh, or 404 (which names the build job when the mesh's
-    tree is still being built)."""
-    return await engine.io(_known, store, owner, mesh_id)
-
-
-def _known(store, owner: str, mesh_id: str) -> dict:
+    tree is still being built); reads the store."""
     facts = store.mesh(owner, mesh_id)
     if facts is None:
         pending = [j for j in store.jobs(owner, ACTIVE) if j["mesh"] == mesh_id]
