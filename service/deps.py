@@ -16,10 +16,9 @@ from .banks import BankCache
 from .builds import BuildJobs
 from .codecs import decode
 from .compute import EngineRunner, Warmup
-from .errors import Unprocessable
+from .errors import invalid
 from .idempotency import InFlight
 from .metrics import Metrics
-from .models.problems import field_errors, joined
 from .scenes import LiveScenes
 from .settings import Settings
 from .store import Store
@@ -36,7 +35,6 @@ __all__ = [
     "Storage",
     "Warming",
     "body",
-    "invalid",
     "validated",
 ]
 
@@ -96,16 +94,6 @@ async def _owner(
 
 
 Owner = Annotated[str, Depends(_owner)]
-
-
-def invalid(error: ValidationError, prefix: str = "") -> Unprocessable:
-    """A 422 problem naming each invalid field (``errors``: path and message)."""
-    errors = field_errors(error.errors(include_url=False))
-    if prefix:
-        for e in errors:
-            e["path"] = f"{prefix}.{e['path']}" if e["path"] else prefix
-    detail = joined(errors)
-    return Unprocessable(detail, errors=errors)
 
 
 def validated(kind: type[BaseModel] | TypeAdapter, raw: bytes, content_type: str | None) -> Any:

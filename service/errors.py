@@ -46,6 +46,7 @@ __all__ = [
     "Unprocessable",
     "UnsupportedMediaType",
     "install_handlers",
+    "invalid",
     "problem",
 ]
 
@@ -100,6 +101,13 @@ class NotReady(ServiceError):
     status, title = 503, "Service Unavailable"
 
 
+def invalid(error) -> Unprocessable:
+    """The 422 problem of a validation error (pydantic's, or FastAPI's for parameters):
+    ``errors`` names each invalid field's path and what was wrong, ``detail`` joins them."""
+    errors = field_errors(error.errors())
+    return Unprocessable(joined(errors), errors=errors)
+
+
 def problem(
     status: int, title: str, detail: str, instance: str | None = None, headers=None, **extra
 ) -> JSONResponse:
@@ -126,9 +134,8 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
-        errors = field_errors(exc.errors())
-        detail = joined(errors)
-        return problem(422, Unprocessable.title, detail, request.url.path, errors=errors)
+        error = invalid(exc)
+        return problem(422, error.title, error.detail, request.url.path, **error.extra)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):

@@ -63,12 +63,13 @@ def path_text(loc) -> str:
     return out
 
 
-def field_errors(errors, skip=("body",)) -> list[dict]:
+def field_errors(errors) -> list[dict]:
     """Pydantic's errors as ``[{"path", "message"}]``, each message saying what the field
-    must be and what it got; tagged-union and validator parts of a location are dropped."""
+    must be and what it got; the ``body`` prefix of FastAPI's locations and tagged-union and
+    validator parts are dropped (``query.wait`` keeps its prefix)."""
     out = []
     for error in errors:
-        loc = [p for p in error.get("loc", ()) if p not in skip and not _internal(p)]
+        loc = [p for p in error.get("loc", ()) if p != "body" and not _internal(p)]
         ctx = error.get("ctx") or {}
         loc += [ctx["field"]] if "field" in ctx else []  # a model's check on one field
         loc += list(ctx.get("index", ()))  # an array's element
@@ -135,7 +136,7 @@ def _internal(part) -> bool:
     )
 
 
-_TAGS = ("columnar", "per_pair", "tensor", "moments")
+_TAGS = ("columnar", "per_pair")  # service.models.contacts.ContactsQuery
 
 
 _VERBS = ("must", "is", "has", "holds", "needs")

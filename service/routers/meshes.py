@@ -26,10 +26,17 @@ from engine import InvalidMeshError, Mesh, load_mesh, size_epsilon
 
 from ..builds import content_id, mesh_facts
 from ..codecs import respond
-from ..deps import Banks, Builds, Config, Engine, Owner, Storage, invalid, validated
-from ..errors import BadRequest, Conflict, NotFound, NotReady, ServiceError, Unprocessable
+from ..deps import Banks, Builds, Config, Engine, Owner, Storage, validated
+from ..errors import (
+    BadRequest,
+    Conflict,
+    NotFound,
+    NotReady,
+    ServiceError,
+    Unprocessable,
+    invalid,
+)
 from ..models import (
-    MAX_BRANCHING,
     BuildJob,
     MeshFacts,
     MeshForm,
@@ -55,9 +62,7 @@ MESH_FILE = {
             "enum": list(FILE_TYPES),
             "description": "default: the file name's suffix",
         },
-        "epsilon": {"type": "number", "exclusiveMinimum": 0},
-        "branching": {"type": "integer", "minimum": 2, "maximum": MAX_BRANCHING},
-        "strict": {"type": "boolean"},
+        **MeshForm.model_json_schema()["properties"],  # epsilon, branching, strict
     },
 }
 
