@@ -23,7 +23,7 @@ from .openapi import install as install_openapi
 from .routers import contacts, health, jobs, meshes, scenes
 from .scenes import LiveScenes
 from .settings import Settings
-from .store import Store
+from .store import open_store
 
 __all__ = ["create_app"]
 
@@ -40,9 +40,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI):
         if settings.keep_large_blocks and not keep_large_blocks():
             log.info("MRDEM_KEEP_LARGE_BLOCKS: not glibc, the allocator keeps its defaults")
-        app.state.store = Store(
-            settings.data_dir, settings.tree_cache, settings.idempotency_retention
-        )
+        app.state.store = open_store(settings)
         app.state.scenes = LiveScenes(app.state.store, settings.engine_threads)
         app.state.banks = BankCache(app.state.store)
         app.state.builds = BuildJobs(

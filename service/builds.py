@@ -82,6 +82,7 @@ def mesh_facts(mesh_id: str, mesh: Mesh, tree, epsilon: float, branching: int) -
     }
 
 
+STRAY_AGE = 600.0  # seconds before a job mesh without a job row is a stray on a shared store
 MAX_ATTEMPTS = 3  # builds of one job interrupted by a crash before it is failed ("crashed")
 CRASHED = (
     "the build was interrupted {attempts} times (the server stopped or crashed while building"
@@ -163,6 +164,9 @@ class BuildJobs:
         stray job files, unreferenced tree files and old finished jobs, then start the
         workers."""
         for job in self.store.jobs(statuses=ACTIVE):
+            with self.store.claim(f"build:{job['id']}") as mine:
+                if not mine:  # another replica builds it now
+                    continue
             if job["attempts"] >= MAX_ATTEMPTS:
                 self._fail(job["id"], "crashed", CRASHED.format(attempts=job["attempts"]))
                 self._count("failed")
@@ -181,10 +185,12 @@ class BuildJobs:
             self.store.set_job(job["id"], "queued", levels=0, nodes=0)
             self._enqueue(job["id"])
             log.info("build job %s queued again after a restart", job["id"])
-        active = {job["id"] for job in self.store.jobs(statuses=ACTIVE)}
-        for path in self.store.jobs_dir.glob("*.npz"):
-            if path.stem not in active:
-                path.unlink(missing_ok=True)
+        # a replica's upload writes its job's mesh a moment before the job's row: on a
+        # shared store, only meshes older than that moment can be strays
+        age = STRAY_AGE if self.store.shared else 0.0
+        strays = set(self.store.job_meshes(older_than=age))
+        for job_id in strays - {job["id"] for job in self.store.jobs(statuses=ACTIVE)}:
+            self.store.drop_job_mesh(job_id)
         swept = self.store.sweep_trees()
         if swept:
             log.info("removed %d tree files nothing refers to", swept)
@@ -212,11 +218,13 @@ class BuildJobs:
         self.store.put_job_mesh(job_id, mesh.vertices, mesh.faces)  # no lock held: slow
         try:
             with self._submitting:  # another upload of the same content may have won
-                joined = self._join(owner, mesh_id, extra)
-                if joined is None:
-                    self.store.add_job(job_id, mesh_id, spec, owner, extra)
-                    self._enqueue(job_id)
-                    return Submission(job_id, True, True)
+                while True:  # … here, or on another replica (add_job is then refused)
+                    joined = self._join(owner, mesh_id, extra)
+                    if joined is not None:
+                        break
+                    if self.store.add_job(job_id, mesh_id, spec, owner, extra):
+                        self._enqueue(job_id)
+                        return Submission(job_id, True, True)
         except BaseException:
             self.store.drop_job_mesh(job_id)
             raise
@@ -304,7 +312,14 @@ class BuildJobs:
         live = self._live[job_id]
         status = None
         try:
-            status = self._build(job_id, live)
+            with self.store.claim(f"build:{job_id}") as mine:
+                job = self.store.job(job_id) if mine else None
+                if job is None or job["status"] not in ACTIVE:
+                    # built by another replica (or finished by it meanwhile): its waiters
+                    # read the outcome from the store
+                    self._finish(live)
+                    return
+                status = self._build(job_id, live)
         except Exception as exc:  # recording the outcome failed (the store is broken)
             if self._closed:
                 return
@@ -348,7 +363,7 @@ class BuildJobs:
                 if live.cancelled or self._closed:
                     raise _Cancelled
 
-            if self.store.tree_path(job["mesh"]).exists():  # built before a crash
+            if self.store.has_tree(job["mesh"]):  # built before a crash
                 tree = self.store.tree(job["mesh"])
             else:
                 tree = build_tree(

@@ -27,7 +27,7 @@ import numpy as np
 
 from engine import AUTO_EPSILON, DEFAULT_SEPARATION_SPEED, EngineError, Scene
 
-from .errors import NotFound, Unprocessable
+from .errors import Conflict, NotFound, Unprocessable
 from .models import LAWS, STATE
 
 __all__ = [
@@ -135,16 +135,21 @@ def state_of(scene: Scene) -> dict:
 
 @dataclass
 class LiveScene:
-    """An engine scene in memory, with the lock that serialises its steps."""
+    """An engine scene in memory, with the lock that serialises its steps and the version
+    of the stored state it holds (:meth:`Store.save_state <service.store.Store.save_state>`
+    compares and sets it)."""
 
     scene: Scene
     spec: dict
     steps: int
+    version: int = 0
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
 class LiveScenes:
-    """Scenes kept in memory (least recently used dropped first; the store has them)."""
+    """Scenes kept in memory (least recently used dropped first; the store has them). On a
+    store other processes share, a scene in memory is used only while its version is the
+    stored one; another replica's step or state makes it rebuild from the store."""
 
     def __init__(self, store, threads: int, capacity: int = 64) -> None:
         self.store, self.threads, self.capacity = store, threads, capacity
@@ -161,18 +166,48 @@ class LiveScenes:
         """The live scene (rebuilt from the store when not in memory), or 404."""
         key = (owner, scene_id)
         with self._lock:
-            if key in self._live:
+            live = self._live.get(key)
+            if live is not None:
                 self._live.move_to_end(key)
-                return self._live[key]
-        stored = self.store.scene(owner, scene_id)
+        if live is not None:
+            if not self.store.shared:
+                return live
+            version = self.store.scene_version(owner, scene_id)
+            if version is None:
+                self.drop(owner, scene_id)
+                raise NotFound(f"no scene {scene_id!r}")
+            if version == live.version:
+                return live
+        stored = self.store.scene_row(owner, scene_id)
         if stored is None:
             raise NotFound(f"no scene {scene_id!r}")
-        spec, blob, steps = stored
+        spec, blob, steps, version = stored
         scene = build_scene(spec, self.store.tree, self.threads)
         restore_state(scene, blob)
-        live = LiveScene(scene, spec, steps)
+        live = LiveScene(scene, spec, steps, version)
         self.add(owner, scene_id, live)
         return live
+
+    def saved(
+        self, owner: str, scene_id: str, live: LiveScene, state: bytes, steps: int, remember=None
+    ) -> None:
+        """Store ``live``'s new state (``steps`` in all, with an idempotency key's row) if
+        the stored state is still the one ``live`` holds, and count its version up
+        (``live.lock`` held). Otherwise nothing is stored, the copy in memory is dropped
+        and 404 (the scene is gone) or 409 (another request changed it meanwhile) raised;
+        :class:`~service.store.KeyTaken` as :meth:`~service.store.Store.save_state`."""
+        if self.store.save_state(owner, scene_id, state, steps, remember, after=live.version):
+            live.version += 1
+            live.steps = steps
+            return
+        self.drop(owner, scene_id)
+        if self.store.scene_version(owner, scene_id) is None:
+            raise NotFound(f"no scene {scene_id!r}")
+        raise Conflict(
+            f"scene {scene_id!r} was stepped or changed by another request while this one"
+            " ran; nothing was stored: send this request again",
+            {"Retry-After": "0"},
+        )
 
     def drop(self, owner: str, scene_id: str) -> None:
         with self._lock:

@@ -51,6 +51,25 @@ class Settings(BaseSettings):
         ),
     )
     tree_cache: int = Field(256, ge=1, description="surrogate trees kept in memory")
+    store_url: str | None = Field(
+        None,
+        description="PostgreSQL database shared by replicas (postgresql://user:password@host"
+        ":port/db; needs mrdem[cluster]); unset: SQLite in data_dir",
+    )
+    store_pool: int = Field(16, ge=2, description="connections to the PostgreSQL store")
+    object_store_url: str | None = Field(
+        None,
+        description="S3-compatible bucket for tree files (s3://bucket/prefix; needs"
+        " mrdem[cluster]; credentials from AWS_ACCESS_KEY_ID …); unset: files in data_dir",
+    )
+    object_store_endpoint: str | None = Field(
+        None, description="endpoint of an S3-compatible store other than AWS (http://host:port)"
+    )
+    tree_disk_cache: int = Field(
+        2 * 2**30,
+        ge=0,
+        description="bytes of tree files read from the object store kept under data_dir/tree-cache",
+    )
     build_wait: float = Field(
         5.0,
         ge=0.0,

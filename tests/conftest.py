@@ -54,3 +54,23 @@ def live_service(tmp_path_factory):
 def http(service):
     with service.client(timeout=120.0) as client:
         yield client
+
+
+@pytest.fixture(scope="session")
+def postgres():
+    """A PostgreSQL server of this test process (:class:`servers.PostgresServer`)."""
+    from servers import PostgresServer
+
+    server = PostgresServer()
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="session")
+def s3():
+    """An S3-compatible server (moto) of this test process (:class:`servers.S3Server`)."""
+    from servers import S3Server
+
+    server = S3Server()
+    yield server
+    server.stop()

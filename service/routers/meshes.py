@@ -132,7 +132,7 @@ async def upload_mesh(
         return await engine.io(
             respond, request, MeshFacts(**{**facts, "repair": extra["repair"]}), 200
         )
-    if await engine.io(store.tree_path(mesh_id).exists):  # built for another owner or a scene
+    if await engine.io(store.has_tree, mesh_id):  # built for another owner or a scene
         try:
             tree = await engine.run("load_tree", store.tree, mesh_id)
         except FileNotFoundError:  # its last owner deleted it just now: build it again

@@ -11,7 +11,7 @@ from fastapi.responses import Response
 
 from ..codecs import respond
 from ..deps import Config, Engine, Held, Live, Meter, Owner, Storage, body, validated
-from ..errors import Conflict, NotFound, Unprocessable
+from ..errors import Conflict, NotFound, ServiceError, Unprocessable
 from ..idempotency import HEADER, keyed, replayed
 from ..models import SceneSpec, SceneSummary, StateUpdate, StepAnswer, StepRequest
 from ..openapi import documented
@@ -115,7 +115,7 @@ async def get_scene(scene_id: str, request: Request, owner: Owner, engine: Engin
     summary="Overwrite any of the state arrays",
     **documented(
         {200: (SceneSummary, "The scene, with overlaps when positions or orientations changed")},
-        (400, 401, 404, 406, 413, 415, 422),
+        (400, 401, 404, 406, 409, 413, 415, 422),
         body=StateUpdate,
     ),
 )
@@ -144,9 +144,13 @@ async def put_state(
 
     def apply():
         with live.lock:
+            before = pack_state(live.scene)
             report = live.scene.set_state(**new)
-            if not store.save_state(owner, scene_id, pack_state(live.scene), live.steps):
-                raise NotFound(f"no scene {scene_id!r}")
+            try:
+                scenes.saved(owner, scene_id, live, pack_state(live.scene), live.steps)
+            except ServiceError:
+                restore_state(live.scene, before)
+                raise
             return report
 
     report = await engine.run("set_state", apply)
@@ -223,16 +227,15 @@ async def step_scene(
                 )
                 remember = None if key is None else key.remember(200, answer.model_dump())
                 try:
-                    saved = store.save_state(
-                        owner, scene_id, pack_state(scene), live.steps + steps, remember
+                    scenes.saved(
+                        owner, scene_id, live, pack_state(scene), live.steps + steps, remember
                     )
                 except KeyTaken:  # stored by a request in another process meanwhile
                     restore_state(scene, before)
                     return None, stats
-                if not saved:
+                except ServiceError:  # the scene is gone, or changed by another replica
                     restore_state(scene, before)
-                    raise NotFound(f"no scene {scene_id!r}")
-                live.steps += steps
+                    raise
                 return answer, stats
 
         answer, stats = await engine.run("step", run)

@@ -46,7 +46,7 @@ def test_a_mesh_or_scene_is_not_recorded_when_its_tree_file_went(tmp_path):
     store = Store(tmp_path)
     try:
         mesh_id = _stored_tree(store)
-        store.tree_path(mesh_id).unlink()
+        store.blobs.path(f"trees/{mesh_id}.npz").unlink()
         assert store.add_mesh("alpha", mesh_id, {"id": mesh_id}) is None
         assert store.mesh("alpha", mesh_id) is None
         assert store.add_scene("alpha", "s1", {}, b"", [mesh_id]) == [mesh_id]
@@ -83,12 +83,12 @@ def test_a_failed_job_removes_its_tree_unless_something_uses_it(tmp_path):
         mesh_id = _stored_tree(store)
         store.add_job("j1", mesh_id, SPEC, "alpha", {})
         store.fail_job("j1", "internal", "boom")
-        assert not store.tree_path(mesh_id).exists()
+        assert not store.has_tree(mesh_id)
         _stored_tree(store)
         assert store.add_mesh("beta", mesh_id, {"id": mesh_id})
         store.add_job("j2", mesh_id, SPEC, "alpha", {})
         store.fail_job("j2", "internal", "boom")
-        assert store.tree_path(mesh_id).exists()  # beta's mesh uses it
+        assert store.has_tree(mesh_id)  # beta's mesh uses it
         assert store.job("j2")["status"] == "failed"
     finally:
         store.close()
@@ -104,7 +104,7 @@ def test_start_up_fails_crash_looping_and_unreadable_jobs_and_sweeps_trees(tmp_p
     attempts = [store.start_job("crashy") for _ in range(MAX_ATTEMPTS)]
     assert attempts == list(range(1, MAX_ATTEMPTS + 1))
     store.add_job("broken", "m-broken", SPEC, "", {})
-    store.job_path("broken").write_bytes(b"")  # np.load: EOFError
+    store.blobs.path("jobs/broken.npz").write_bytes(b"")  # np.load: EOFError
     orphan = _stored_tree(store)
     store.close()
     with _app(tmp_path) as client:

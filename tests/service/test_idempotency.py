@@ -161,7 +161,9 @@ def test_the_store_keeps_a_key_with_its_effect_or_neither(tmp_path):
         assert store.save_state("o", "a", b"new", 1, ("k3", "f", 200, packb({})))
         assert store.scene("o", "a")[1:] == (b"new", 1) and store.remembered("o", "k3")
         # keys older than the retention go when another is stored
-        store.db.execute("UPDATE idempotency SET created = created - 7200 WHERE key = 'k'")
+        store.db.connection.execute(
+            "UPDATE idempotency SET created = created - 7200 WHERE key = 'k'"
+        )
         assert store.save_state("o", "a", b"newer", 2, ("k4", "f", 200, packb({})))
         assert store.remembered("o", "k") is None and store.remembered("o", "k3")
     finally:
