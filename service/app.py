@@ -5,7 +5,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from contextlib import asynccontextmanager
+from typing import Any
 
 from fastapi import FastAPI, Request
 
@@ -22,18 +24,29 @@ from .metrics import Metrics
 from .openapi import install as install_openapi
 from .routers import contacts, health, jobs, meshes, scenes
 from .scenes import LiveScenes
+from .search import BatchSplitter
 from .settings import Settings
-from .store import open_store
+from .store import Store, open_store
 
 __all__ = ["create_app"]
 
 log = logging.getLogger("mrdem.service")
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
+def create_app(
+    settings: Settings | None = None,
+    *,
+    scene_host: Callable[[Store, Settings], Any] | None = None,
+    splitter: Callable[[Store, Settings], BatchSplitter | None] | None = None,
+) -> FastAPI:
     """The service app. When the app starts, the store opens, unfinished tree builds of an
     earlier run are queued again (:class:`BuildJobs`, background threads) and the kernel
-    warm-up starts (in a background thread: ``/readyz`` answers 503 until it is done)."""
+    warm-up starts (in a background thread: ``/readyz`` answers 503 until it is done).
+
+    A cluster (:mod:`service.cluster`) passes what it runs elsewhere: ``scene_host(store,
+    settings)`` gives what holds the scenes (default: :class:`LiveScenes`, in this
+    process) and ``splitter(store, settings)`` what runs big contacts requests as chunks
+    (default: none)."""
     settings = settings or Settings()
 
     @asynccontextmanager
@@ -41,7 +54,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.keep_large_blocks and not keep_large_blocks():
             log.info("MRDEM_KEEP_LARGE_BLOCKS: not glibc, the allocator keeps its defaults")
         app.state.store = open_store(settings)
-        app.state.scenes = LiveScenes(app.state.store, settings.engine_threads)
+        if scene_host is None:
+            app.state.scenes = LiveScenes(app.state.store, settings.engine_threads)
+        else:
+            app.state.scenes = scene_host(app.state.store, settings)
+        app.state.splitter = None if splitter is None else splitter(app.state.store, settings)
         app.state.banks = BankCache(app.state.store)
         app.state.builds = BuildJobs(
             app.state.store,

@@ -79,6 +79,37 @@ def _progress(done: int, total: int, name: str, seconds: float) -> None:
     print(f"\r{_bar(done, total)} {name} ({seconds:.0f} s)", end="", flush=True)
 
 
+def _cluster(args) -> int:
+    """``mrdem cluster serve``: the service on the Ray cluster at ``--address``."""
+    try:
+        from .cluster import run
+    except ImportError as exc:
+        print(f"mrdem cluster needs Ray: pip install 'mrdem[cluster]' ({exc})", file=sys.stderr)
+        return 2
+    given = {
+        "host": args.host,
+        "port": args.port,
+        "replicas": args.replicas,
+        "replica_cpus": args.replica_cpus,
+    }
+    settings = Settings(**{k: v for k, v in given.items() if v is not None})
+    if not (settings.store_url and settings.object_store_url):
+        print(
+            "mrdem cluster serve: replicas share their store; set MRDEM_STORE_URL"
+            " (postgresql://…) and MRDEM_OBJECT_STORE_URL (s3://bucket/prefix)",
+            file=sys.stderr,
+        )
+        return 2
+    run(
+        settings.model_copy(update={"data_dir": settings.data_dir.resolve()}),
+        args.address,
+        settings.replicas,
+        settings.replica_cpus,
+        blocking=not args.detach,
+    )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mrdem", description="mrdem: multiresolution DEM")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -86,6 +117,25 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--host", help="overrides MRDEM_HOST")
     run.add_argument("--port", type=int, help="overrides MRDEM_PORT")
     run.add_argument("--data-dir", help="overrides MRDEM_DATA_DIR")
+    cluster = sub.add_parser(
+        "cluster", help="scale out on Ray: `mrdem cluster serve` (needs mrdem[cluster])"
+    )
+    cluster_sub = cluster.add_subparsers(dest="cluster_command", required=True)
+    on_ray = cluster_sub.add_parser(
+        "serve",
+        help="deploy the service on a Ray cluster (Serve replicas, scenes as actors); settings"
+        " from MRDEM_*, MRDEM_STORE_URL and MRDEM_OBJECT_STORE_URL required",
+    )
+    on_ray.add_argument(
+        "--address", default="auto", help="the Ray cluster (default: auto, the one joined)"
+    )
+    on_ray.add_argument("--replicas", type=int, help="overrides MRDEM_REPLICAS")
+    on_ray.add_argument("--replica-cpus", type=float, help="overrides MRDEM_REPLICA_CPUS")
+    on_ray.add_argument("--host", help="overrides MRDEM_HOST (Serve's HTTP proxy)")
+    on_ray.add_argument("--port", type=int, help="overrides MRDEM_PORT")
+    on_ray.add_argument(
+        "--detach", action="store_true", help="deploy and return (the app keeps running)"
+    )
     sub.add_parser("info", help="versions, CPU and kernel cache")
     warm = sub.add_parser("warmup", help="compile every kernel (or load it from the cache)")
     warm.add_argument("--workers", type=int, help="processes compiling at once")
@@ -115,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown benchmarks {unknown}; choose from {list(BENCHMARKS)}")
         return bench(list(args.names) or list(BENCHMARKS), args.quick)
+    if args.command == "cluster":
+        return _cluster(args)
     given = {"host": args.host, "port": args.port, "data_dir": args.data_dir}
     serve(Settings(**{k: v for k, v in given.items() if v is not None}))
     return 0

@@ -20,6 +20,7 @@ from .errors import invalid
 from .idempotency import InFlight
 from .metrics import Metrics
 from .scenes import LiveScenes
+from .search import BatchSplitter
 from .settings import Settings
 from .store import Store
 
@@ -32,6 +33,7 @@ __all__ = [
     "Live",
     "Meter",
     "Owner",
+    "Splitter",
     "Storage",
     "Warming",
     "body",
@@ -75,6 +77,10 @@ async def _in_flight(request: Request) -> InFlight:
     return request.app.state.in_flight
 
 
+async def _splitter(request: Request) -> BatchSplitter | None:
+    return request.app.state.splitter
+
+
 Config = Annotated[Settings, Depends(_settings)]
 Storage = Annotated[Store, Depends(_store)]
 Engine = Annotated[EngineRunner, Depends(_engine)]
@@ -84,6 +90,7 @@ Builds = Annotated[BuildJobs, Depends(_builds)]
 Meter = Annotated[Metrics, Depends(_metrics)]
 Warming = Annotated[Warmup, Depends(_warmup)]
 Held = Annotated[InFlight, Depends(_in_flight)]
+Splitter = Annotated[BatchSplitter | None, Depends(_splitter)]
 
 
 async def _owner(

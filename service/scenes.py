@@ -27,8 +27,9 @@ import numpy as np
 
 from engine import AUTO_EPSILON, DEFAULT_SEPARATION_SPEED, EngineError, Scene
 
-from .errors import Conflict, NotFound, Unprocessable
-from .models import LAWS, STATE
+from .errors import Conflict, NotFound, ServiceError, Unprocessable
+from .models import LAWS, STATE, SceneSummary, StepAnswer
+from .store import KeyTaken
 
 __all__ = [
     "LiveScene",
@@ -38,6 +39,7 @@ __all__ = [
     "pack_state",
     "restore_state",
     "state_of",
+    "summary_of",
 ]
 
 
@@ -133,6 +135,25 @@ def state_of(scene: Scene) -> dict:
     return {k: getattr(scene, k).copy() for k in STATE}
 
 
+def summary_of(scene_id: str, live: LiveScene, overlaps: dict | None = None) -> SceneSummary:
+    """The answer describing a scene: its rows, state, mass sources, ε and specification."""
+    spec = live.spec
+    return SceneSummary(
+        id=scene_id,
+        bodies=len(spec["bodies"]),
+        planes=len(spec["planes"]),
+        time=live.scene.time,
+        steps=live.steps,
+        dt=spec["dt"],
+        scheme=spec["scheme"],
+        state=state_of(live.scene),
+        mass_source=live.scene.mass_source.tolist(),  # mesh | convex_hull | given | fixed
+        epsilon=live.scene.epsilon,  # each row's ε, after the default rule
+        spec=spec,
+        overlaps=overlaps,
+    )
+
+
 @dataclass
 class LiveScene:
     """An engine scene in memory, with the lock that serialises its steps and the version
@@ -212,3 +233,74 @@ class LiveScenes:
     def drop(self, owner: str, scene_id: str) -> None:
         with self._lock:
             self._live.pop((owner, scene_id), None)
+
+    # the operations of the routes (blocking: run them in a worker thread); a cluster's
+    # scene actors offer the same three (service.cluster.scenes)
+    def summary(self, owner: str, scene_id: str) -> SceneSummary:
+        """The scene's answer, or 404."""
+        return summary_of(scene_id, self.get(owner, scene_id))
+
+    def put_state(self, owner: str, scene_id: str, new: dict) -> SceneSummary:
+        """Overwrite the state arrays in ``new`` (each ``(n, k)``, n: bodies then planes),
+        store the state, and answer the scene with the overlaps the new poses make (None
+        when no pose changed); 404, 409, or 422 for arrays of the wrong length."""
+        live = self.get(owner, scene_id)
+        n = len(live.scene)
+        for name, value in new.items():
+            if len(value) != n:
+                shape = f"({n}, {value.shape[1]})"
+                message = f"must have shape {shape} (bodies, then planes), got {list(value.shape)}"
+                raise Unprocessable(
+                    f"{name} {message}", errors=[{"path": name, "message": message}]
+                )
+        with live.lock:
+            before = pack_state(live.scene)
+            report = live.scene.set_state(**new)
+            try:
+                self.saved(owner, scene_id, live, pack_state(live.scene), live.steps)
+            except ServiceError:
+                restore_state(live.scene, before)
+                raise
+            overlaps = None
+            if report is not None:
+                overlaps = {"pairs": report.pairs.tolist(), "largest": report.largest}
+            return summary_of(scene_id, live, overlaps)
+
+    def step(self, owner: str, scene_id: str, steps: int, dt: float | None, key=None):
+        """Take ``steps`` steps of ``dt`` (None: the scene's) and store the new state (with
+        the answer under the idempotency ``key``, :class:`~service.idempotency.Key`, in
+        the same transaction): ``(answer, each step's statistics)``, or ``(None, …)`` when
+        another process stored the key meanwhile (nothing stored: answer the stored one).
+        A step leaving a non-finite state undoes the request (422)."""
+        live = self.get(owner, scene_id)
+        dt = live.spec["dt"] if dt is None else dt
+        with live.lock:
+            scene = live.scene
+            before = pack_state(scene)
+            stats = []
+            for k in range(steps):
+                stats.append(scene.step(dt))
+                if not all(np.isfinite(a).all() for a in state_of(scene).values()):
+                    restore_state(scene, before)
+                    raise Unprocessable(
+                        f"step {k + 1} of {steps} left a non-finite state (the simulation"
+                        " diverged); the scene keeps the state it had before this"
+                        " request. Try a smaller dt or a softer contact model"
+                    )
+            answer = StepAnswer(
+                id=scene_id,
+                time=scene.time,
+                steps=live.steps + steps,
+                state=state_of(scene),
+                stats=stats,
+            )
+            remember = None if key is None else key.remember(200, answer.model_dump())
+            try:
+                self.saved(owner, scene_id, live, pack_state(scene), live.steps + steps, remember)
+            except KeyTaken:  # stored by a request in another process meanwhile
+                restore_state(scene, before)
+                return None, stats
+            except ServiceError:  # the scene is gone, or changed by another replica
+                restore_state(scene, before)
+                raise
+            return answer, stats

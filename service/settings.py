@@ -95,6 +95,30 @@ class Settings(BaseSettings):
         " (0: forever)",
     )
 
+    # scale-out on Ray (service.cluster; `mrdem cluster serve`)
+    replicas: int = Field(1, ge=1, description="Serve replicas of the app (mrdem cluster serve)")
+    replica_cpus: float = Field(
+        1.0, gt=0, description="CPUs of each replica (its engine threads: this, rounded)"
+    )
+    scene_cpus: float = Field(1.0, gt=0, description="CPUs of each scene's actor")
+    scene_idle: float = Field(
+        600.0, ge=0, description="seconds a scene's actor waits for a request before it leaves"
+    )
+    split_pairs: int = Field(
+        2000, ge=1, description="contacts requests of at least this many pairs run as Ray tasks"
+    )
+    split_chunks: int = Field(
+        8, ge=1, description="tasks a split contacts request runs as, at most"
+    )
+    task_cpus: float = Field(1.0, gt=0, description="CPUs of each contacts task")
+
+    @field_validator("store_url")
+    @classmethod
+    def _postgres(cls, value):
+        if value is not None and not value.startswith(("postgresql://", "postgres://")):
+            raise ValueError("the store URL is a PostgreSQL one: postgresql://user@host/db")
+        return value
+
     @field_validator("api_keys", mode="before")
     @classmethod
     def _split_keys(cls, value):

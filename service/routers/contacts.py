@@ -24,10 +24,8 @@ from typing import Annotated
 import numpy as np
 from fastapi import APIRouter, Request
 
-from engine import Pose, find_contacts_batch
-
 from ..codecs import respond
-from ..deps import Banks, Config, Engine, Meter, Owner, Storage, body
+from ..deps import Banks, Config, Engine, Meter, Owner, Splitter, Storage, body
 from ..errors import Unprocessable
 from ..models import (
     CONTACTS_QUERY,
@@ -39,6 +37,7 @@ from ..models import (
     PerPairQuery,
 )
 from ..openapi import documented
+from ..search import find
 from .meshes import known
 
 router = APIRouter(prefix="/v1", tags=["contacts"])
@@ -61,6 +60,7 @@ async def contacts(
     engine: Engine,
     banks: Banks,
     metrics: Meter,
+    splitter: Splitter,
     query: Annotated[ColumnarQuery | PerPairQuery, body(CONTACTS_QUERY)],
 ):
     """The contacts of n posed pairs of uploaded meshes, columnar (CSR) or per pair."""
@@ -75,15 +75,11 @@ async def contacts(
         for mesh_id in meshes:
             known(store, owner, mesh_id)
         start = time.perf_counter()
-        if query.hierarchy:
-            bank = banks.get(tuple(meshes), query.precision)
-            batch = bank.find_contacts(
-                *columns, kernel=query.kernel, threads=settings.engine_threads
-            )
-            found = _from_batch(batch)
+        options = (query.kernel, query.hierarchy, query.precision)
+        if splitter is not None and splitter.applies(n):  # across the cluster's nodes
+            found = splitter.find(meshes, columns, *options)
         else:
-            trees = [store.tree(m) for m in meshes]
-            found = _flat(trees, columns, query.kernel, query.precision)
+            found = find(meshes, columns, *options, settings.engine_threads, store, banks)
         found["stats"]["seconds"] = time.perf_counter() - start
         stats = ContactStatsOut(**found.pop("stats"))
         # the engine's arrays as they are (typed and finite by construction): not validated
@@ -116,55 +112,6 @@ def _columns(query: ColumnarQuery | PerPairQuery) -> tuple[list[str], tuple]:
         np.array([p.pose_b.position for p in pairs]),
         np.array([p.pose_b.orientation for p in pairs]),
     )
-
-
-def _from_batch(batch) -> dict:
-    return {
-        "offsets": batch.contact_offsets,
-        "points": batch.points,
-        "normals": batch.normals,
-        "overlaps": batch.overlaps,
-        "pair_offsets": batch.pair_offsets,
-        "pairs": batch.pairs,
-        "stats": {
-            "pairs": len(batch),
-            "contacts": len(batch.points),
-            "comparisons": batch.comparisons,
-            "iterative": batch.iterative,
-            "fallbacks": batch.fallbacks,
-            "sphere_pruned": batch.sphere_pruned,
-        },
-    }
-
-
-def _flat(trees, query, kernel: str, precision: str) -> dict:
-    a, pa, qa, b, pb, qb = query
-    found = find_contacts_batch(
-        [(trees[a[i]], Pose(pa[i], qa[i]), trees[b[i]], Pose(pb[i], qb[i])) for i in range(len(a))],
-        kernel=kernel,
-        hierarchy=False,
-        precision=precision,
-    )
-
-    def offsets(sizes):
-        return np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-
-    return {
-        "offsets": offsets([len(c.points) for c in found]),
-        "points": np.concatenate([c.points for c in found]).reshape(-1, 3),
-        "normals": np.concatenate([c.normals for c in found]).reshape(-1, 3),
-        "overlaps": np.concatenate([c.overlaps for c in found]),
-        "pair_offsets": offsets([len(c.pairs) for c in found]),
-        "pairs": np.concatenate([c.pairs for c in found]).reshape(-1, 2),
-        "stats": {
-            "pairs": len(found),
-            "contacts": int(sum(len(c.points) for c in found)),
-            "comparisons": sum(c.stats.comparisons for c in found),
-            "iterative": sum(c.stats.iterative for c in found),
-            "fallbacks": sum(c.stats.fallbacks for c in found),
-            "sphere_pruned": sum(c.stats.sphere_pruned for c in found),
-        },
-    }
 
 
 def _split(found: dict) -> list[dict]:

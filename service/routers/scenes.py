@@ -5,24 +5,16 @@ from __future__ import annotations
 import uuid
 from typing import Annotated
 
-import numpy as np
 from fastapi import APIRouter, Header, Request
 from fastapi.responses import Response
 
 from ..codecs import respond
 from ..deps import Config, Engine, Held, Live, Meter, Owner, Storage, body, validated
-from ..errors import Conflict, NotFound, ServiceError, Unprocessable
+from ..errors import Conflict, NotFound, Unprocessable
 from ..idempotency import HEADER, keyed, replayed
 from ..models import SceneSpec, SceneSummary, StateUpdate, StepAnswer, StepRequest
 from ..openapi import documented
-from ..scenes import (
-    LiveScene,
-    apply_mesh_defaults,
-    build_scene,
-    pack_state,
-    restore_state,
-    state_of,
-)
+from ..scenes import LiveScene, apply_mesh_defaults, build_scene, pack_state, summary_of
 from ..store import KeyTaken
 from .meshes import known_mesh
 
@@ -84,7 +76,7 @@ async def create_scene(
         )
         scene_id = uuid.uuid4().hex
         live = LiveScene(scene, spec, 0)
-        answer = _summary(scene_id, live)
+        answer = summary_of(scene_id, live)
         remember = None if key is None else key.remember(201, answer.model_dump())
         try:
             gone = await engine.io(
@@ -106,8 +98,8 @@ async def create_scene(
     **documented({200: (SceneSummary, "The scene")}, (401, 404, 406, 422)),
 )
 async def get_scene(scene_id: str, request: Request, owner: Owner, engine: Engine, scenes: Live):
-    live = await engine.run("load_scene", scenes.get, owner, scene_id)
-    return await engine.io(respond, request, _summary(scene_id, live))
+    answer = await engine.run("load_scene", scenes.summary, owner, scene_id)
+    return await engine.io(respond, request, answer)
 
 
 @router.put(
@@ -133,31 +125,8 @@ async def put_state(
     ``overlaps`` when positions or orientations were set (else null): ``pairs``, the body
     pairs whose surfaces now cross (overlap beyond the reach ε_a + ε_b), and ``largest``,
     the largest overlap of any contact relative to its pair's reach."""
-    live = await engine.run("load_scene", scenes.get, owner, scene_id)
-    n = len(live.scene)
-    new = update.given()
-    for name, value in new.items():
-        if len(value) != n:
-            shape = f"({n}, {value.shape[1]})"
-            message = f"must have shape {shape} (bodies, then planes), got {list(value.shape)}"
-            raise Unprocessable(f"{name} {message}", errors=[{"path": name, "message": message}])
-
-    def apply():
-        with live.lock:
-            before = pack_state(live.scene)
-            report = live.scene.set_state(**new)
-            try:
-                scenes.saved(owner, scene_id, live, pack_state(live.scene), live.steps)
-            except ServiceError:
-                restore_state(live.scene, before)
-                raise
-            return report
-
-    report = await engine.run("set_state", apply)
-    overlaps = None
-    if report is not None:
-        overlaps = {"pairs": report.pairs.tolist(), "largest": report.largest}
-    return await engine.io(respond, request, _summary(scene_id, live, overlaps))
+    answer = await engine.run("set_state", scenes.put_state, owner, scene_id, update.given())
+    return await engine.io(respond, request, answer)
 
 
 @router.post(
@@ -200,45 +169,8 @@ async def step_scene(
     async with keyed(request, owner, raw, store, engine, held) as (key, again):
         if again is not None:
             return again
-        live = await engine.run("load_scene", scenes.get, owner, scene_id)
         steps = asked.steps
-        dt = live.spec["dt"] if asked.dt is None else asked.dt
-
-        def run():
-            with live.lock:
-                scene = live.scene
-                before = pack_state(scene)
-                stats = []
-                for k in range(steps):
-                    stats.append(scene.step(dt))
-                    if not all(np.isfinite(a).all() for a in state_of(scene).values()):
-                        restore_state(scene, before)
-                        raise Unprocessable(
-                            f"step {k + 1} of {steps} left a non-finite state (the simulation"
-                            " diverged); the scene keeps the state it had before this"
-                            " request. Try a smaller dt or a softer contact model"
-                        )
-                answer = StepAnswer(
-                    id=scene_id,
-                    time=scene.time,
-                    steps=live.steps + steps,
-                    state=state_of(scene),
-                    stats=stats,
-                )
-                remember = None if key is None else key.remember(200, answer.model_dump())
-                try:
-                    scenes.saved(
-                        owner, scene_id, live, pack_state(scene), live.steps + steps, remember
-                    )
-                except KeyTaken:  # stored by a request in another process meanwhile
-                    restore_state(scene, before)
-                    return None, stats
-                except ServiceError:  # the scene is gone, or changed by another replica
-                    restore_state(scene, before)
-                    raise
-                return answer, stats
-
-        answer, stats = await engine.run("step", run)
+        answer, stats = await engine.run("step", scenes.step, owner, scene_id, steps, asked.dt, key)
         if answer is None:
             return await engine.io(replayed, request, store, owner, key)
     metrics.steps.inc(steps)
@@ -259,21 +191,3 @@ async def delete_scene(scene_id: str, owner: Owner, store: Storage, engine: Engi
         raise NotFound(f"no scene {scene_id!r}")
     scenes.drop(owner, scene_id)
     return Response(status_code=204)
-
-
-def _summary(scene_id: str, live: LiveScene, overlaps: dict | None = None) -> SceneSummary:
-    spec = live.spec
-    return SceneSummary(
-        id=scene_id,
-        bodies=len(spec["bodies"]),
-        planes=len(spec["planes"]),
-        time=live.scene.time,
-        steps=live.steps,
-        dt=spec["dt"],
-        scheme=spec["scheme"],
-        state=state_of(live.scene),
-        mass_source=live.scene.mass_source.tolist(),  # mesh | convex_hull | given | fixed
-        epsilon=live.scene.epsilon,  # each row's ε, after the default rule
-        spec=spec,
-        overlaps=overlaps,
-    )

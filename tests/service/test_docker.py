@@ -82,3 +82,38 @@ def test_the_container_command_serves_and_passes_its_health_check(tmp_path):
         assert (data / "mrdem.sqlite3").exists()
     finally:
         service.stop()
+
+
+def test_the_cluster_compose_file_runs_the_tested_commands_with_real_settings():
+    """docker/compose.cluster.yaml (no Docker engine here): the head runs the two commands
+    tests/cluster/test_cli.py runs for real (``ray start --head``, ``mrdem cluster serve``)
+    with options the command line has; every MRDEM_* variable is a setting; the image is
+    built with the cluster extra; Ray containers get a big /dev/shm."""
+    import yaml
+
+    from service.settings import Settings
+
+    compose = yaml.safe_load((ROOT / "docker" / "compose.cluster.yaml").read_text())
+    services = compose["services"]
+    assert {"ray-head", "ray-worker", "postgres", "s3"} <= set(services)
+    head = " ".join(services["ray-head"]["command"])
+    assert "ray start --head" in head and "mrdem cluster serve" in head
+    serve_options = re.findall(r"(--[a-z-]+)", head.split("mrdem cluster serve", 1)[1])
+    help_text = subprocess.run(
+        [sys.executable, "-m", "service.cli", "cluster", "serve", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    for option in serve_options:
+        assert option in help_text, f"mrdem cluster serve has no {option}"
+    assert services["ray-worker"]["command"][:2] == ["ray", "start"]
+    fields = set(Settings.model_fields)
+    for name in ("ray-head", "ray-worker"):
+        service = services[name]
+        assert service["build"]["args"]["EXTRAS"] == "cluster"
+        assert service["shm_size"] == "2gb"
+        for variable in service["environment"]:
+            if variable.startswith("MRDEM_"):
+                assert variable[len("MRDEM_") :].lower() in fields, f"{variable} is no setting"
+    assert 'pip install ".${EXTRAS:+[$EXTRAS]}"' in DOCKERFILE.read_text()

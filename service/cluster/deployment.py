@@ -1,0 +1,121 @@
+"""The service as a Ray Serve deployment: the same FastAPI app (:func:`service.app.
+create_app`) in N replicas behind Serve's HTTP proxy, the scenes in Ray actors
+(:mod:`.scenes`), big contacts requests split into Ray tasks (:mod:`.batches`), and the store
+shared by all (PostgreSQL and an S3-compatible bucket: ``MRDEM_STORE_URL``,
+``MRDEM_OBJECT_STORE_URL``).
+
+A replica sizes its engine threads to the CPUs Ray gave it, and compiles or loads every
+kernel in its constructor: a failure there fails the replica loudly (Serve reports it and
+retries), and Serve routes to a replica only once its constructor returned, so no request
+waits for a compile. Replicas, scene actors and tasks share ``NUMBA_CACHE_DIR`` (Numba writes
+each cache file to a temporary name and renames it: concurrent writers are safe; every
+process must be able to write the folder).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+
+import ray
+from ray import serve
+
+import engine
+
+from ..app import create_app
+from ..settings import Settings
+from .batches import RaySplitter
+from .scenes import NAMESPACE, ActorScenes
+
+__all__ = ["APP_NAME", "Ingress", "application", "run"]
+
+APP_NAME = "mrdem"
+log = logging.getLogger("mrdem.cluster")
+
+#: variables a replica, a scene actor and a task need from the environment that started
+#: the deployment: the kernel cache, and boto3's credentials for the object store
+PASSED_ON = (
+    "NUMBA_CACHE_DIR",
+    "AWS_ACCESS_KEY_ID",
+    "AWS_SECRET_ACCESS_KEY",
+    "AWS_SESSION_TOKEN",
+    "AWS_DEFAULT_REGION",
+    "AWS_REGION",
+)
+
+
+class Ingress:
+    """One replica: settings from the deployment (``values``, what ``Settings`` takes),
+    threads sized to its CPUs, kernels ready before it serves."""
+
+    def __init__(self, values: dict) -> None:
+        cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1.0)
+        threads = max(1, int(round(cpus)))
+        self.settings = Settings(
+            **{**values, "engine_threads": threads, "engine_concurrency": threads, "warmup": False}
+        )
+        if not (self.settings.store_url and self.settings.object_store_url):
+            raise RuntimeError(
+                "replicas share their store: set MRDEM_STORE_URL (postgresql://…) and"
+                " MRDEM_OBJECT_STORE_URL (s3://bucket/prefix)"
+            )
+        seconds = engine.warmup(1)  # raises on failure: the replica fails to start
+        log.info("replica ready: %d engine threads, kernels in %.1f s", threads, seconds)
+
+    def __serve_build_asgi_app__(self):
+        settings = self.settings
+
+        def scene_host(store, settings):
+            return ActorScenes(store, settings, settings.scene_cpus, settings.scene_idle)
+
+        def splitter(store, settings):
+            return RaySplitter(
+                settings, settings.split_pairs, settings.split_chunks, settings.task_cpus
+            )
+
+        app = create_app(settings, scene_host=scene_host, splitter=splitter)
+        replica = serve.get_replica_context().replica_id.unique_id
+
+        @app.middleware("http")
+        async def served_by(request, call_next):  # which replica answered (for operators)
+            response = await call_next(request)
+            response.headers["X-Mrdem-Replica"] = replica
+            return response
+
+        return app
+
+
+def application(settings: Settings, replicas: int, cpus: float) -> serve.Application:
+    """The Serve application: ``replicas`` replicas of ``cpus`` CPUs each."""
+    env = {k: os.environ[k] for k in PASSED_ON if k in os.environ}
+    deployment = serve.deployment(
+        serve.ingress()(Ingress),
+        name="mrdem",
+        num_replicas=replicas,
+        ray_actor_options={"num_cpus": cpus, "runtime_env": {"env_vars": env}},
+        max_ongoing_requests=max(8, 4 * int(cpus)),
+        health_check_period_s=5,
+    )
+    return deployment.bind(settings.model_dump(mode="json"))
+
+
+def run(
+    settings: Settings,
+    address: str | None,
+    replicas: int,
+    cpus: float,
+    blocking: bool = True,
+    proxies: str = "EveryNode",
+) -> None:
+    """Deploy on the Ray cluster at ``address`` (``auto``: the one this machine joined;
+    None: a new local one), Serve's HTTP proxy on ``settings.host:settings.port`` of every
+    node (``proxies="HeadOnly"``: of the head only); with ``blocking``, until interrupted
+    (then the application is deleted)."""
+    ray.init(address=address, namespace=NAMESPACE)
+    serve.start(proxy_location=proxies, http_options={"host": settings.host, "port": settings.port})
+    serve.run(
+        application(settings, replicas, cpus),
+        name=APP_NAME,
+        route_prefix="/",
+        blocking=blocking,
+    )

@@ -1,0 +1,131 @@
+"""Scenes as Ray actors: each scene lives in an actor named by its owner and id, which keeps
+the engine scene (and its warm starts) between step requests, and stores the state on every
+acknowledged step (:meth:`LiveScenes.saved <service.scenes.LiveScenes.saved>`, compare and
+set). Any replica reaches a scene's actor by name; when the actor is gone (its node died,
+or it was idle for ``MRDEM_SCENE_IDLE`` seconds and left), the next request creates it again
+and it rebuilds the scene from the last stored state — what a restart of the embedded
+service does.
+
+An actor is a process: a live scene costs one (with its kernels loaded) while it is used.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+import time
+
+import ray
+from ray.exceptions import ActorDiedError, ActorUnavailableError, GetTimeoutError, RayTaskError
+
+from ..scenes import LiveScenes
+from ..settings import Settings
+from ..store import Store, open_store
+
+__all__ = ["ActorScenes", "SceneActor", "actor_name"]
+
+NAMESPACE = "mrdem"
+_GONE = (ActorDiedError, ActorUnavailableError)
+
+
+def actor_name(owner: str, scene_id: str) -> str:
+    """The actor's name: the scene id and a digest of its owner (API keys' digests are long,
+    and two owners may use the same id)."""
+    return f"scene-{scene_id}-{hashlib.sha256(owner.encode()).hexdigest()[:16]}"
+
+
+class SceneActor:
+    """One scene in its own process: a :class:`LiveScenes` over the shared store, used
+    serially (one call at a time). Leaves after ``idle`` seconds without a call."""
+
+    def __init__(self, settings: Settings, idle: float) -> None:
+        self.store = open_store(settings)
+        self.scenes = LiveScenes(self.store, settings.engine_threads, capacity=1)
+        self.idle, self.last = idle, time.monotonic()
+        if idle > 0:
+            threading.Thread(target=self._leave_when_idle, daemon=True).start()
+
+    def _leave_when_idle(self) -> None:
+        while True:
+            time.sleep(min(self.idle, 5.0))
+            if time.monotonic() - self.last > self.idle:
+                self.store.close()
+                ray.kill(ray.get_runtime_context().current_actor, no_restart=True)
+                return
+
+    def call(self, method: str, *args):
+        """``LiveScenes.<method>(*args)`` (summary, put_state, step)."""
+        self.last = time.monotonic()
+        try:
+            return getattr(self.scenes, method)(*args)
+        finally:
+            self.last = time.monotonic()
+
+    def node(self) -> str:
+        """The id of the Ray node this actor runs on."""
+        return ray.get_runtime_context().get_node_id()
+
+
+class ActorScenes:
+    """What a replica's routes use in place of :class:`LiveScenes`: the same operations,
+    each a call to the scene's actor (created when missing, again when it died)."""
+
+    def __init__(
+        self, store: Store, settings: Settings, cpus: float = 1.0, idle: float = 600.0
+    ) -> None:
+        self.store, self.settings, self.cpus, self.idle = store, settings, cpus, idle
+        self._remote = ray.remote(SceneActor)
+        self.timeout = 300.0  # seconds a call may wait (recreating an actor included)
+
+    def actor(self, owner: str, scene_id: str):
+        """The scene's actor, created if it does not exist."""
+        threads = max(1, int(round(self.cpus)))
+        settings = self.settings.model_copy(
+            update={"engine_threads": threads, "engine_concurrency": 1, "warmup": False}
+        )
+        return self._remote.options(
+            name=actor_name(owner, scene_id),
+            namespace=NAMESPACE,
+            get_if_exists=True,
+            lifetime="detached",  # not tied to the replica that made it
+            num_cpus=self.cpus,
+            max_restarts=0,  # a dead actor is recreated by the next request, from the store
+        ).remote(settings, self.idle)
+
+    def _call(self, owner: str, scene_id: str, method: str, *args):
+        deadline = time.monotonic() + self.timeout
+        pause = 0.05
+        while True:
+            actor = self.actor(owner, scene_id)
+            try:
+                left = max(1.0, deadline - time.monotonic())
+                return ray.get(actor.call.remote(method, owner, scene_id, *args), timeout=left)
+            except RayTaskError as exc:  # the scene's own answer: 404, 409, 422 …
+                raise exc.cause from None
+            except _GONE:  # its node died or it left: the next actor loads the stored state
+                if time.monotonic() > deadline:
+                    raise
+            except GetTimeoutError:
+                raise TimeoutError(f"scene {scene_id!r} did not answer in time") from None
+            time.sleep(pause)
+            pause = min(1.0, pause * 2)
+
+    def summary(self, owner: str, scene_id: str):
+        return self._call(owner, scene_id, "summary")
+
+    def put_state(self, owner: str, scene_id: str, new: dict):
+        return self._call(owner, scene_id, "put_state", new)
+
+    def step(self, owner: str, scene_id: str, steps: int, dt, key=None):
+        return self._call(owner, scene_id, "step", steps, dt, key)
+
+    def add(self, owner: str, scene_id: str, live) -> None:
+        """A new scene: its actor loads it from the store on its first request."""
+
+    def drop(self, owner: str, scene_id: str) -> None:
+        """The scene was deleted: its actor goes."""
+        try:
+            actor = ray.get_actor(actor_name(owner, scene_id), namespace=NAMESPACE)
+        except ValueError:  # no such actor
+            return
+        ray.kill(actor, no_restart=True)

@@ -1,0 +1,111 @@
+"""The contacts of a columnar batch of posed pairs, as arrays (the answer's columns), and
+the merge of batches searched apart (the chunks of a big request run on a cluster's nodes:
+:mod:`service.cluster.batches`)."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from engine import Pose, find_contacts_batch
+
+__all__ = ["BatchSplitter", "find", "merge", "split"]
+
+
+class BatchSplitter(Protocol):
+    """Runs a big contacts request as chunks elsewhere (a cluster's nodes)."""
+
+    def applies(self, pairs: int) -> bool:
+        """Whether a request of ``pairs`` pairs is split."""
+
+    def find(self, meshes, columns, kernel, hierarchy, precision) -> dict:
+        """What :func:`find` answers for the whole request."""
+
+
+_ROWS = ("points", "normals", "overlaps")
+_STATS = ("pairs", "contacts", "comparisons", "iterative", "fallbacks", "sphere_pruned")
+
+
+def find(meshes, columns, kernel, hierarchy, precision, threads, store, banks) -> dict:
+    """The contacts of ``columns`` ``(a (n,) int64, position_a (n, 3), orientation_a (n, 4),
+    b, position_b, orientation_b)`` (``a``/``b`` index ``meshes``): ``offsets (n + 1,)``,
+    ``points (c, 3)``, ``normals (c, 3)``, ``overlaps (c,)``, ``pair_offsets (n + 1,)``,
+    ``pairs (m, 2)`` and ``stats``; trees from ``store``, multiresolution banks from
+    ``banks`` (:class:`~service.banks.BankCache`)."""
+    if hierarchy:
+        bank = banks.get(tuple(meshes), precision)
+        return _from_batch(bank.find_contacts(*columns, kernel=kernel, threads=threads))
+    return _flat([store.tree(m) for m in meshes], columns, kernel, precision)
+
+
+def split(columns, chunks: int) -> list[tuple]:
+    """``columns`` cut into ``chunks`` runs of consecutive pairs (as equal as can be)."""
+    n = len(columns[0])
+    cuts = np.linspace(0, n, chunks + 1).round().astype(np.int64)
+    return [tuple(c[cuts[k] : cuts[k + 1]] for c in columns) for k in range(chunks)]
+
+
+def merge(parts: list[dict]) -> dict:
+    """One answer of the answers of consecutive runs of pairs, in order: rows
+    concatenated, offsets shifted, statistics summed."""
+    if len(parts) == 1:
+        return parts[0]
+    merged = {name: np.concatenate([p[name] for p in parts]) for name in (*_ROWS, "pairs")}
+    for name in ("offsets", "pair_offsets"):
+        pieces, base = [np.zeros(1, np.int64)], 0
+        for part in parts:
+            pieces.append(part[name][1:] + base)
+            base += int(part[name][-1])
+        merged[name] = np.concatenate(pieces)
+    merged["stats"] = {k: sum(p["stats"][k] for p in parts) for k in _STATS}
+    return merged
+
+
+def _from_batch(batch) -> dict:
+    return {
+        "offsets": batch.contact_offsets,
+        "points": batch.points,
+        "normals": batch.normals,
+        "overlaps": batch.overlaps,
+        "pair_offsets": batch.pair_offsets,
+        "pairs": batch.pairs,
+        "stats": {
+            "pairs": len(batch),
+            "contacts": len(batch.points),
+            "comparisons": batch.comparisons,
+            "iterative": batch.iterative,
+            "fallbacks": batch.fallbacks,
+            "sphere_pruned": batch.sphere_pruned,
+        },
+    }
+
+
+def _flat(trees, query, kernel: str, precision: str) -> dict:
+    a, pa, qa, b, pb, qb = query
+    found = find_contacts_batch(
+        [(trees[a[i]], Pose(pa[i], qa[i]), trees[b[i]], Pose(pb[i], qb[i])) for i in range(len(a))],
+        kernel=kernel,
+        hierarchy=False,
+        precision=precision,
+    )
+
+    def offsets(sizes):
+        return np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+
+    return {
+        "offsets": offsets([len(c.points) for c in found]),
+        "points": np.concatenate([c.points for c in found]).reshape(-1, 3),
+        "normals": np.concatenate([c.normals for c in found]).reshape(-1, 3),
+        "overlaps": np.concatenate([c.overlaps for c in found]),
+        "pair_offsets": offsets([len(c.pairs) for c in found]),
+        "pairs": np.concatenate([c.pairs for c in found]).reshape(-1, 2),
+        "stats": {
+            "pairs": len(found),
+            "contacts": int(sum(len(c.points) for c in found)),
+            "comparisons": sum(c.stats.comparisons for c in found),
+            "iterative": sum(c.stats.iterative for c in found),
+            "fallbacks": sum(c.stats.fallbacks for c in found),
+            "sphere_pruned": sum(c.stats.sphere_pruned for c in found),
+        },
+    }

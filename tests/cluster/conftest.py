@@ -1,0 +1,75 @@
+"""A real Ray cluster on this machine for the ``cluster`` tests (``make test-cluster``): a
+head (no CPUs: Ray's control processes and Serve's proxy) and two worker nodes on loopback,
+a PostgreSQL server and an S3-compatible server (moto), and the service deployed on Serve
+(two replicas) over them."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import httpx
+import pytest
+from servers import free_port, missing
+
+NODE = {"num_cpus": 2, "object_store_memory": 10**8}
+
+
+@pytest.fixture(scope="session")
+def ray_cluster(postgres, s3, tmp_path_factory):
+    """``(cluster, url, settings)``: the Ray cluster (``cluster.worker_nodes``), the Serve
+    endpoint's URL and the deployment's settings."""
+    try:
+        import ray
+    except ImportError:
+        missing("ray (pip install 'mrdem[cluster]')")
+    from ray import serve
+    from ray.cluster_utils import Cluster
+
+    from service.cluster import APP_NAME, NAMESPACE, application
+    from service.settings import Settings
+
+    os.environ.setdefault("NUMBA_CACHE_DIR", str(tmp_path_factory.mktemp("numba")))
+    cluster = Cluster(
+        initialize_head=True,
+        head_node_args={
+            "num_cpus": 0,
+            "object_store_memory": 10**8,
+            "include_dashboard": True,  # Ray's state API (where tasks ran) needs it
+            "dashboard_host": "127.0.0.1",
+            "dashboard_port": free_port(),
+            # a dead node is noticed within about a second, not fifteen
+            "_system_config": {
+                "health_check_period_ms": 300,
+                "health_check_failure_threshold": 3,
+                "health_check_timeout_ms": 300,
+            },
+        },
+    )
+    for _ in range(2):
+        cluster.add_node(**NODE)
+    ray.init(address=cluster.address, namespace=NAMESPACE)
+    port = free_port()
+    settings = Settings(
+        data_dir=tmp_path_factory.mktemp("cluster") / "data",
+        store_url=postgres.database(),
+        object_store_url=s3.bucket(),
+        object_store_endpoint=s3.endpoint,
+        replica_cpus=0.5,
+        scene_cpus=0.5,
+        task_cpus=0.5,
+        split_pairs=1000,
+    )
+    serve.start(proxy_location="HeadOnly", http_options={"host": "127.0.0.1", "port": port})
+    serve.run(application(settings, 2, 0.5), name=APP_NAME, route_prefix="/")
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 120
+    while httpx.get(f"{url}/readyz", timeout=30).status_code != 200:
+        assert time.monotonic() < deadline, "the Serve endpoint never became ready"
+        time.sleep(0.5)
+    try:
+        yield cluster, url, settings
+    finally:
+        serve.shutdown()
+        ray.shutdown()
+        cluster.shutdown()

@@ -1,0 +1,180 @@
+"""The service on a real Ray cluster (``pytest -m cluster``; ``make test-cluster``): the
+README's remote loop through the Serve endpoint; two replicas answering the contacts of the
+embedded service; a big contacts request split across the nodes answering what one process
+answers; a scene's node killed mid-run, and the scene going on from its stored state with no
+acknowledged step lost, as an uninterrupted run."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import signal
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from harness import InProcessService
+
+from clients import Client
+from engine import shapes
+
+pytestmark = pytest.mark.cluster
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+@pytest.fixture(scope="module")
+def embedded(tmp_path_factory):
+    """The embedded service (SQLite and files), the oracle of the cluster's answers."""
+    with InProcessService(tmp_path_factory.mktemp("embedded") / "data") as service:
+        yield service
+
+
+def _upload(client: Client, mesh) -> str:
+    return client.upload_mesh(mesh, epsilon=0.05).id
+
+
+def _query(mesh_ids, n: int, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(2 * n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return {
+        "meshes": mesh_ids,
+        "a": rng.integers(0, len(mesh_ids), n),
+        "b": rng.integers(0, len(mesh_ids), n),
+        "position_a": rng.uniform(-0.1, 0.1, (n, 3)),
+        "orientation_a": q[:n],
+        "position_b": rng.uniform(-1.0, 1.0, (n, 3)),
+        "orientation_b": q[n:],
+    }
+
+
+def _same(found, expected) -> None:
+    for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
+        np.testing.assert_array_equal(getattr(found, name), getattr(expected, name), name)
+
+
+def test_the_readme_remote_loop_runs_against_the_serve_endpoint(ray_cluster, monkeypatch, capsys):
+    _, url, _ = ray_cluster
+    (block,) = re.findall(r"```python remote\n(.*?)```", README.read_text(), re.S)
+    monkeypatch.setenv("MRDEM_URL", url)
+    namespace: dict = {}
+    exec(compile(block, str(README), "exec"), namespace)  # noqa: S102
+    state = namespace["state"]
+    assert state.steps == 400 and state.positions.shape == (2, 3)
+    assert 0.3 < state.positions[0, 0] < 0.45  # it rolled, then was stopped
+    assert abs(state.positions[0, 2] - 0.5) < 0.02  # resting on the plane
+    assert "ball at" in capsys.readouterr().out
+
+
+def test_two_replicas_answer_the_contacts_of_the_embedded_service(ray_cluster, embedded):
+    _, url, _ = ray_cluster
+    meshes = [shapes.box(), shapes.icosphere(2)]
+    with Client(url) as cluster, Client(embedded.url, transport=embedded.transport) as alone:
+        ids = [_upload(cluster, m) for m in meshes]
+        assert [_upload(alone, m) for m in meshes] == ids  # content ids: the same meshes
+        query = _query(ids, 200, seed=7)
+        expected = alone.find_contacts(**query)
+        assert expected.offsets[-1] > 0
+        replicas = set()
+        for _ in range(16):
+            response = httpx.post(f"{url}/v1/contacts", json=_jsonable(query), timeout=120)
+            assert response.status_code == 200, response.text
+            replicas.add(response.headers["X-Mrdem-Replica"])
+            _same(cluster.find_contacts(**query), expected)
+        assert len(replicas) == 2  # both replicas answered
+
+
+def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray_cluster, embedded):
+    from ray.util.state import list_tasks
+
+    _, url, settings = ray_cluster
+    n = 3 * settings.split_pairs
+    with Client(url) as cluster, Client(embedded.url, transport=embedded.transport) as alone:
+        ids = [_upload(c, shapes.box()) for c in (cluster, alone)]
+        query = _query(ids[:1], n, seed=11)
+        _same(cluster.find_contacts(**query), alone.find_contacts(**query))
+    chunks = list_tasks(
+        address=f"http://{ray_cluster[0].webui_url}",
+        filters=[("func_or_class_name", "=", "_search_chunk")],
+        detail=True,
+    )
+    assert len({task.node_id for task in chunks}) == 2  # the runs went to both nodes
+
+
+def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embedded):
+    """Steps acknowledged before the scene's node died are all there: the acknowledged
+    step counts run 5, 10, …, 100 without a gap, and the final state is an uninterrupted
+    run's, bit for bit (the explicit scheme)."""
+    import ray
+
+    from service.cluster import NAMESPACE, actor_name
+
+    cluster_nodes, url, _ = ray_cluster
+    spec = {
+        "bodies": [
+            {"mesh": None, "position": [0, 0, 1.03], "velocity": [0.2, 0, 0], "epsilon": 0.02}
+        ],
+        "planes": [{"point": [0, 0, 0], "normal": [0, 0, 1]}],
+        "dt": 5e-4,
+        "scheme": "explicit",
+    }
+    acknowledged, states = [], {}
+    for name, client in (
+        ("cluster", Client(url)),
+        ("alone", Client(embedded.url, transport=embedded.transport)),
+    ):
+        with client:
+            spec["bodies"][0]["mesh"] = _upload(client, shapes.icosphere(2))
+            scene = client.create_scene(**spec)
+            for k in range(20):
+                state = scene.step(5)
+                if name == "cluster":
+                    acknowledged.append(state.steps)
+                    if k == 9:  # kill the node the scene's actor runs on
+                        actor = ray.get_actor(actor_name("", scene.id), namespace=NAMESPACE)
+                        node_id = ray.get(actor.node.remote())
+                        (node,) = [n for n in cluster_nodes.worker_nodes if n.node_id == node_id]
+                        _kill_node(cluster_nodes, node)
+            if name == "cluster":  # a new actor, on the node left, took the scene over
+                actor = ray.get_actor(actor_name("", scene.id), namespace=NAMESPACE)
+                assert ray.get(actor.node.remote()) != node_id
+            states[name] = state
+    assert acknowledged == list(range(5, 105, 5))
+    for part in ("positions", "orientations", "velocities", "angular_velocities"):
+        np.testing.assert_array_equal(
+            getattr(states["cluster"], part), getattr(states["alone"], part), part
+        )
+    cluster_nodes.add_node(num_cpus=2, object_store_memory=10**8)  # for what runs after
+
+
+def _kill_node(cluster, node) -> None:
+    """The node dies as a machine does: every process it runs (the scene's actor, maybe a
+    replica) killed at once with its raylet, not told first."""
+    raylet = node.all_processes["raylet"][0].process.pid
+    for pid in _descendants(raylet):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    cluster.remove_node(node, allow_graceful=False)
+
+
+def _descendants(pid: int) -> list[int]:
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):  # gone meanwhile
+            continue
+        children.setdefault(parent, []).append(int(stat.parent.name))
+    found, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def _jsonable(query: dict) -> dict:
+    return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in query.items()}
