@@ -58,9 +58,14 @@ def http(service):
 
 @pytest.fixture(scope="session")
 def postgres():
-    """A PostgreSQL server of this test process (:class:`servers.PostgresServer`)."""
-    from servers import PostgresServer
+    """A PostgreSQL server of this test process (:class:`mrdem_common.loopback.
+    PostgresServer`)."""
+    from servers import missing
 
+    from mrdem_common.loopback import PostgresServer, postgres_bin
+
+    if postgres_bin() is None:
+        missing("PostgreSQL (initdb, pg_ctl)")
     server = PostgresServer()
     yield server
     server.stop()
@@ -68,8 +73,9 @@ def postgres():
 
 @pytest.fixture(scope="session")
 def s3():
-    """An S3-compatible server (moto) of this test process (:class:`servers.S3Server`)."""
-    from servers import S3Server
+    """An S3-compatible server (moto) of this test process (:class:`mrdem_common.loopback.
+    S3Server`)."""
+    from mrdem_common.loopback import S3Server
 
     server = S3Server()
     yield server

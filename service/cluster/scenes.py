@@ -16,7 +16,7 @@ import threading
 import time
 
 import ray
-from ray.exceptions import ActorDiedError, ActorUnavailableError, GetTimeoutError, RayTaskError
+from ray.exceptions import ActorDiedError, ActorUnavailableError, RayTaskError
 
 from ..scenes import LiveScenes
 from ..settings import Settings
@@ -75,7 +75,7 @@ class ActorScenes:
     ) -> None:
         self.store, self.settings, self.cpus, self.idle = store, settings, cpus, idle
         self._remote = ray.remote(SceneActor)
-        self.timeout = 300.0  # seconds a call may wait (recreating an actor included)
+        self.recreate_for = 120.0  # seconds a call goes on recreating a scene's dead actor
 
     def actor(self, owner: str, scene_id: str):
         """The scene's actor, created if it does not exist."""
@@ -93,20 +93,17 @@ class ActorScenes:
         ).remote(settings, self.idle)
 
     def _call(self, owner: str, scene_id: str, method: str, *args):
-        deadline = time.monotonic() + self.timeout
+        deadline = time.monotonic() + self.recreate_for
         pause = 0.05
         while True:
             actor = self.actor(owner, scene_id)
             try:
-                left = max(1.0, deadline - time.monotonic())
-                return ray.get(actor.call.remote(method, owner, scene_id, *args), timeout=left)
+                return ray.get(actor.call.remote(method, owner, scene_id, *args))
             except RayTaskError as exc:  # the scene's own answer: 404, 409, 422 …
                 raise exc.cause from None
             except _GONE:  # its node died or it left: the next actor loads the stored state
                 if time.monotonic() > deadline:
                     raise
-            except GetTimeoutError:
-                raise TimeoutError(f"scene {scene_id!r} did not answer in time") from None
             time.sleep(pause)
             pause = min(1.0, pause * 2)
 

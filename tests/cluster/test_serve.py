@@ -16,6 +16,7 @@ import httpx
 import numpy as np
 import pytest
 from harness import InProcessService
+from servers import descendants
 
 from clients import Client
 from engine import shapes
@@ -154,27 +155,30 @@ def _kill_node(cluster, node) -> None:
     """The node dies as a machine does: every process it runs (the scene's actor, maybe a
     replica) killed at once with its raylet, not told first."""
     raylet = node.all_processes["raylet"][0].process.pid
-    for pid in _descendants(raylet):
+    for pid in descendants(raylet):
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
     cluster.remove_node(node, allow_graceful=False)
 
 
-def _descendants(pid: int) -> list[int]:
-    children: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, ValueError, IndexError):  # gone meanwhile
-            continue
-        children.setdefault(parent, []).append(int(stat.parent.name))
-    found, todo = [], [pid]
-    while todo:
-        for child in children.get(todo.pop(), []):
-            found.append(child)
-            todo.append(child)
-    return found
-
-
 def _jsonable(query: dict) -> dict:
     return {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in query.items()}
+
+
+def test_a_replica_that_cannot_start_fails_the_deployment_loudly(ray_cluster, tmp_path):
+    """A replica's constructor raises (here: no shared store; a kernel compile failure
+    raises the same way): Serve reports the application failed, with the reason, instead of
+    routing to a replica that is not ready."""
+    from ray import serve
+
+    from service.cluster import application
+    from service.settings import Settings
+
+    broken = Settings(data_dir=tmp_path / "data")  # SQLite and files: not shareable
+    with pytest.raises(RuntimeError, match="Deploying application broken failed"):
+        serve.run(application(broken, 1, 0.1), name="broken", route_prefix="/broken")
+    status = serve.status().applications["broken"]
+    assert status.status == "DEPLOY_FAILED"
+    reason = status.deployments["mrdem"].message
+    assert "MRDEM_STORE_URL" in reason and "MRDEM_OBJECT_STORE_URL" in reason, reason
+    serve.delete("broken")

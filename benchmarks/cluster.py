@@ -1,0 +1,280 @@
+"""The service scaled out on Ray (issue 18), on a real local cluster: a Ray head (no CPUs)
+plus worker nodes on loopback, PostgreSQL and an S3-compatible server (moto) for the shared
+store, the app deployed on Ray Serve (``service.cluster.application``).
+
+1. **The Serve hop**: one client sending 10-pair contacts requests one after another, p50 and
+   p99 through Serve (1 replica) against the plain service (``python -m service``, uvicorn)
+   over the same shared store and against the embedded one (SQLite and files).
+2. **Replicas**: ``--clients`` closed-loop clients sending 10-pair requests for
+   ``--seconds``: requests/s, p50, p99 with 1, 2, … replicas (``--replicas``) of
+   ``--replica-cpus`` CPUs each, and the plain service beside them.
+3. **A 10,000-pair batch on 1 and on 2 nodes** (1 CPU each): on one node the replica
+   searches it alone; on two it is split into two Ray tasks, one a node
+   (``MRDEM_SPLIT_PAIRS``); medians of ``--repeats`` requests after a warm one.
+
+Needs ``mrdem[cluster]`` and the PostgreSQL server binaries. The client threads run on the
+same machine as the cluster: on 2 cores they take CPU from it (say so when quoting).
+
+    .venv/bin/python benchmarks/cluster.py [--quick] [--replicas 1,2] [--clients 8]
+
+Writes ``bench-results/cluster.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba-cache"))
+
+from common import machine  # noqa: E402
+
+from clients import Client  # noqa: E402
+from engine import shapes  # noqa: E402
+from mrdem_common.loopback import PostgresServer, S3Server  # noqa: E402
+from mrdem_common.serving import ServiceProcess, free_port  # noqa: E402
+
+OUT = ROOT / "bench-results"
+MESH = shapes.icosphere(3, radius=0.5)  # 1,280 triangles
+
+
+def columns(n: int, seed: int) -> dict:
+    """``n`` pairs of the mesh near contact (centres 1.0–1.03 apart), random orientations."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d *= rng.uniform(1.0, 1.03, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return {
+        "a": np.zeros(n, np.int64),
+        "position_a": np.zeros((n, 3)),
+        "orientation_a": np.tile([1.0, 0, 0, 0], (n, 1)),
+        "b": np.zeros(n, np.int64),
+        "position_b": d,
+        "orientation_b": q,
+    }
+
+
+def sequential(url: str, requests: int) -> dict:
+    """p50/p99 of 10-pair requests sent one after another by one client."""
+    with Client(url, timeout=300) as client:
+        mesh = client.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+        query = columns(10, seed=2)
+        for _ in range(20):
+            client.find_contacts([mesh], **query)
+        seconds = []
+        for _ in range(requests):
+            start = time.perf_counter()
+            client.find_contacts([mesh], **query)
+            seconds.append(time.perf_counter() - start)
+    ms = np.array(seconds) * 1e3
+    return {
+        "requests": requests,
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p99_ms": float(np.percentile(ms, 99)),
+    }
+
+
+def loaded(url: str, clients: int, seconds: float) -> dict:
+    """Throughput and latency of ``clients`` closed-loop clients of 10-pair requests."""
+    with Client(url, timeout=300) as setup:
+        mesh = setup.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+    query = columns(10, seed=3)
+    latencies: list[float] = []
+    lock = threading.Lock()
+    begin = threading.Barrier(clients + 1)
+
+    def work():
+        mine = []
+        with Client(url, timeout=300) as client:
+            client.find_contacts([mesh], **query)  # warm: connection, trees
+            begin.wait()
+            stop = time.perf_counter() + seconds
+            while time.perf_counter() < stop:
+                start = time.perf_counter()
+                client.find_contacts([mesh], **query)
+                mine.append(time.perf_counter() - start)
+        with lock:
+            latencies.extend(mine)
+
+    threads = [threading.Thread(target=work) for _ in range(clients)]
+    for t in threads:
+        t.start()
+    begin.wait()
+    start = time.perf_counter()
+    for t in threads:
+        t.join()
+    wall = time.perf_counter() - start
+    ms = np.array(latencies) * 1e3
+    return {
+        "clients": clients,
+        "requests": len(ms),
+        "seconds": wall,
+        "requests_per_second": len(ms) / wall,
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p99_ms": float(np.percentile(ms, 99)),
+    }
+
+
+def big_batch(url: str, pairs: int, repeats: int) -> dict:
+    with Client(url, timeout=600) as client:
+        mesh = client.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+        query = columns(pairs, seed=5)
+        found = client.find_contacts([mesh], **query)  # warm: trees and banks where it runs
+        seconds = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            client.find_contacts([mesh], **query)
+            seconds.append(time.perf_counter() - start)
+    return {
+        "pairs": pairs,
+        "contacts": int(found.offsets[-1]),
+        "seconds": seconds,
+        "median_s": float(np.median(seconds)),
+    }
+
+
+class RayCluster:
+    """A head (no CPUs) and ``nodes`` worker nodes of ``cpus`` CPUs, the app deployed."""
+
+    def __init__(self, nodes: int, cpus: float, store: dict) -> None:
+        import ray
+        from ray import serve
+        from ray.cluster_utils import Cluster
+
+        from service.cluster import NAMESPACE
+
+        self.ray, self.serve, self.store = ray, serve, store
+        self.cluster = Cluster(
+            initialize_head=True,
+            head_node_args={"num_cpus": 0, "object_store_memory": 10**8},
+        )
+        for _ in range(nodes):
+            self.cluster.add_node(num_cpus=cpus, object_store_memory=10**8)
+        ray.init(address=self.cluster.address, namespace=NAMESPACE)
+        self.port = free_port()
+        serve.start(
+            proxy_location="HeadOnly", http_options={"host": "127.0.0.1", "port": self.port}
+        )
+        self.url = f"http://127.0.0.1:{self.port}"
+
+    def deploy(self, replicas: int, replica_cpus: float, **settings) -> str:
+        from service.cluster import APP_NAME, application
+        from service.settings import Settings
+
+        values = Settings(**self.store, replica_cpus=replica_cpus, **settings)
+        start = time.perf_counter()
+        self.serve.run(application(values, replicas, replica_cpus), name=APP_NAME, route_prefix="/")
+        print(f"  {replicas} replica(s) deployed in {time.perf_counter() - start:.1f} s")
+        return self.url
+
+    def close(self) -> None:
+        self.serve.shutdown()
+        self.ray.shutdown()
+        self.cluster.shutdown()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="shorter runs")
+    parser.add_argument("--replicas", default="1,2", help="replica counts to measure")
+    parser.add_argument("--replica-cpus", type=float, default=1.0)
+    parser.add_argument("--clients", type=int, default=8)
+    parser.add_argument("--seconds", type=float, default=15.0)
+    parser.add_argument("--requests", type=int, default=400, help="sequential requests")
+    parser.add_argument("--pairs", type=int, default=10_000, help="pairs of the big batch")
+    parser.add_argument("--repeats", type=int, default=5, help="big-batch requests measured")
+    args = parser.parse_args()
+    if args.quick:
+        args.seconds, args.requests, args.repeats = 5.0, 100, 3
+    counts = [int(c) for c in args.replicas.split(",")]
+    cpus = os.cpu_count() or 1
+    out: dict = {"machine": machine(), "args": vars(args)}
+    print(f"machine: {out['machine'].get('cpu')} ({cpus} CPUs)")
+
+    postgres, s3 = PostgresServer(), S3Server()
+    tmp = Path(tempfile.mkdtemp(prefix="mrdem-cluster-bench-"))
+    try:
+        shared = {
+            "MRDEM_STORE_URL": postgres.database(),
+            "MRDEM_OBJECT_STORE_URL": s3.bucket(),
+            "MRDEM_OBJECT_STORE_ENDPOINT": s3.endpoint,
+        }
+        plain = {}
+        for name, env in (("embedded", {}), ("shared", shared)):
+            with ServiceProcess(
+                tmp / f"plain-{name}",
+                env={**env, "MRDEM_ENGINE_THREADS": "1", "MRDEM_ENGINE_CONCURRENCY": str(cpus)},
+            ) as service:
+                plain[name] = {"sequential": sequential(service.url, args.requests)}
+                if name == "shared":
+                    plain[name]["loaded"] = loaded(service.url, args.clients, args.seconds)
+            print(f"plain service, {name} store: {plain[name]}")
+        out["plain"] = plain
+
+        store = {
+            "data_dir": tmp / "cluster",
+            "store_url": postgres.database(),
+            "object_store_url": s3.bucket(),
+            "object_store_endpoint": s3.endpoint,
+        }
+        cluster = RayCluster(1, cpus, store)
+        try:
+            out["serve"] = {}
+            for replicas in counts:
+                url = cluster.deploy(replicas, args.replica_cpus)
+                row = {"loaded": loaded(url, args.clients, args.seconds)}
+                if replicas == 1:
+                    row["sequential"] = sequential(url, args.requests)
+                out["serve"][replicas] = row
+                print(f"serve, {replicas} replica(s): {row}")
+        finally:
+            cluster.close()
+
+        out["batch"] = {}
+        for nodes in (1, 2):
+            store = {**store, "store_url": postgres.database(), "object_store_url": s3.bucket()}
+            cluster = RayCluster(nodes, 1, store)
+            try:
+                url = cluster.deploy(
+                    1, 0.1, task_cpus=0.9, split_pairs=min(args.pairs, 2000), split_chunks=nodes
+                )
+                out["batch"][nodes] = big_batch(url, args.pairs, args.repeats)
+                print(f"{args.pairs:,}-pair batch, {nodes} node(s): {out['batch'][nodes]}")
+            finally:
+                cluster.close()
+    finally:
+        postgres.stop()
+        s3.stop()
+
+    hop = out["serve"][counts[0]]["sequential"]["p50_ms"] - plain["shared"]["sequential"]["p50_ms"]
+    print("\n== summary")
+    print(f"Serve hop (10 pairs, p50): {hop:+.2f} ms over the plain service (shared store)")
+    base = out["serve"][counts[0]]["loaded"]["requests_per_second"]
+    for replicas in counts:
+        row = out["serve"][replicas]["loaded"]
+        print(
+            f"{replicas} replica(s): {row['requests_per_second']:.0f} requests/s"
+            f" ({row['requests_per_second'] / base:.2f}x), p50 {row['p50_ms']:.1f} ms,"
+            f" p99 {row['p99_ms']:.1f} ms"
+        )
+    one, two = out["batch"][1]["median_s"], out["batch"][2]["median_s"]
+    print(f"{args.pairs:,}-pair batch: 1 node {one:.3f} s, 2 nodes {two:.3f} s ({one / two:.2f}x)")
+    OUT.mkdir(exist_ok=True)
+    (OUT / "cluster.json").write_text(json.dumps(out, indent=2, default=str))
+    print(f"wrote {OUT / 'cluster.json'}")
+
+
+if __name__ == "__main__":
+    main()
