@@ -15,9 +15,9 @@ store, the app deployed on Ray Serve (``service.cluster.application``).
 Needs ``mrdem[cluster]`` and the PostgreSQL server binaries. The client threads run on the
 same machine as the cluster: on 2 cores they take CPU from it (say so when quoting).
 
-    .venv/bin/python benchmarks/cluster.py [--quick] [--replicas 1,2] [--clients 8]
+    .venv/bin/python benchmarks/cluster.py [--quick] [--replicas 1,2] [--clients 8] [--haproxy]
 
-Writes ``bench-results/cluster.json``.
+Writes ``bench-results/cluster.json`` (``cluster-haproxy.json`` with ``--haproxy``).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.append(str(ROOT / "benchmarks"))  # after ROOT: benchmarks/service.py is no package
 os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba-cache"))
 
 from common import machine  # noqa: E402
@@ -195,7 +195,17 @@ def main() -> None:
     parser.add_argument("--requests", type=int, default=400, help="sequential requests")
     parser.add_argument("--pairs", type=int, default=10_000, help="pairs of the big batch")
     parser.add_argument("--repeats", type=int, default=5, help="big-batch requests measured")
+    parser.add_argument(
+        "--haproxy",
+        action="store_true",
+        help="Serve's HAProxy ingress straight to the replicas' HTTP servers"
+        " (RAY_SERVE_ENABLE_HA_PROXY, RAY_SERVE_ENABLE_DIRECT_INGRESS: Ray 2.60 feature flags)",
+    )
     args = parser.parse_args()
+    if args.haproxy:  # before the cluster starts: its processes inherit them
+        os.environ.update(
+            {"RAY_SERVE_ENABLE_HA_PROXY": "1", "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1"}
+        )
     if args.quick:
         args.seconds, args.requests, args.repeats = 5.0, 100, 3
     counts = [int(c) for c in args.replicas.split(",")]
@@ -215,7 +225,8 @@ def main() -> None:
         for name, env in (("embedded", {}), ("shared", shared)):
             with ServiceProcess(
                 tmp / f"plain-{name}",
-                env={**env, "MRDEM_ENGINE_THREADS": "1", "MRDEM_ENGINE_CONCURRENCY": str(cpus)},
+                env={**os.environ, **env},
+                settings={"engine_threads": 1, "engine_concurrency": cpus},
             ) as service:
                 plain[name] = {"sequential": sequential(service.url, args.requests)}
                 if name == "shared":
@@ -272,8 +283,9 @@ def main() -> None:
     one, two = out["batch"][1]["median_s"], out["batch"][2]["median_s"]
     print(f"{args.pairs:,}-pair batch: 1 node {one:.3f} s, 2 nodes {two:.3f} s ({one / two:.2f}x)")
     OUT.mkdir(exist_ok=True)
-    (OUT / "cluster.json").write_text(json.dumps(out, indent=2, default=str))
-    print(f"wrote {OUT / 'cluster.json'}")
+    name = "cluster-haproxy.json" if args.haproxy else "cluster.json"
+    (OUT / name).write_text(json.dumps(out, indent=2, default=str))
+    print(f"wrote {OUT / name}")
 
 
 if __name__ == "__main__":
