@@ -107,10 +107,13 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
     assert len({task.node_id for task in chunks}) == 2  # the runs went to both nodes
 
 
-def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embedded):
+@pytest.mark.parametrize("scheme", ["explicit", "implicit-midpoint"])
+def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embedded, scheme):
     """Steps acknowledged before the scene's node died are all there: the acknowledged
     step counts run 5, 10, …, 100 without a gap, and the final state is an uninterrupted
-    run's, bit for bit (the explicit scheme)."""
+    run's: bit for bit with the explicit scheme; with an implicit one within what the
+    Picard tolerance allows (the warm starts of the lost actor are not stored), as after a
+    restart of the embedded service."""
     import ray
 
     from service.cluster import NAMESPACE, actor_name
@@ -122,7 +125,7 @@ def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embe
         ],
         "planes": [{"point": [0, 0, 0], "normal": [0, 0, 1]}],
         "dt": 5e-4,
-        "scheme": "explicit",
+        "scheme": scheme,
     }
     acknowledged, states = [], {}
     for name, client in (
@@ -147,9 +150,12 @@ def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embe
             states[name] = state
     assert acknowledged == list(range(5, 105, 5))
     for part in ("positions", "orientations", "velocities", "angular_velocities"):
-        np.testing.assert_array_equal(
-            getattr(states["cluster"], part), getattr(states["alone"], part), part
-        )
+        got, expected = getattr(states["cluster"], part), getattr(states["alone"], part)
+        if scheme == "explicit":
+            np.testing.assert_array_equal(got, expected, part)
+        else:  # 1 % of a force over 50 steps of 0.5 ms: micrometres, millimetres a second
+            tolerance = 1e-5 if part in ("positions", "orientations") else 1e-3
+            np.testing.assert_allclose(got, expected, rtol=0, atol=tolerance, err_msg=part)
     cluster_nodes.add_node(num_cpus=2, object_store_memory=10**8)  # for what runs after
 
 
