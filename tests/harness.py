@@ -174,3 +174,21 @@ def poll_job(client: httpx.Client, location: str, timeout: float = 120.0) -> dic
             return {**job, "seen": seen}
         assert time.monotonic() < deadline, f"job not finished in {timeout} s: {job}"
         time.sleep(0.02)
+
+
+def run_readme_loop(url: str, monkeypatch, capsys) -> None:
+    """The README's remote simulation loop (its ``python remote`` block), run as written
+    against the service at ``url``, and what it must leave: 400 steps, the ball rolled and
+    stopped, resting on the plane, its position printed."""
+    import re
+
+    readme = ROOT / "README.md"
+    (block,) = re.findall(r"```python remote\n(.*?)```", readme.read_text(), re.S)
+    monkeypatch.setenv("MRDEM_URL", url)
+    namespace: dict = {}
+    exec(compile(block, str(readme), "exec"), namespace)  # noqa: S102
+    state = namespace["state"]
+    assert state.steps == 400 and state.positions.shape == (2, 3)
+    assert 0.3 < state.positions[0, 0] < 0.45  # it rolled, then was stopped
+    assert abs(state.positions[0, 2] - 0.5) < 0.02  # resting on the plane
+    assert "ball at" in capsys.readouterr().out

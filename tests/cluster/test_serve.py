@@ -8,23 +8,19 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import signal
 import time
-from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
-from harness import InProcessService
+from harness import InProcessService, run_readme_loop
 from servers import descendants
 
 from clients import Client
 from engine import shapes
 
 pytestmark = pytest.mark.cluster
-
-README = Path(__file__).resolve().parents[2] / "README.md"
 
 
 @pytest.fixture(scope="module")
@@ -59,16 +55,7 @@ def _same(found, expected) -> None:
 
 
 def test_the_readme_remote_loop_runs_against_the_serve_endpoint(ray_cluster, monkeypatch, capsys):
-    _, url, _ = ray_cluster
-    (block,) = re.findall(r"```python remote\n(.*?)```", README.read_text(), re.S)
-    monkeypatch.setenv("MRDEM_URL", url)
-    namespace: dict = {}
-    exec(compile(block, str(README), "exec"), namespace)  # noqa: S102
-    state = namespace["state"]
-    assert state.steps == 400 and state.positions.shape == (2, 3)
-    assert 0.3 < state.positions[0, 0] < 0.45  # it rolled, then was stopped
-    assert abs(state.positions[0, 2] - 0.5) < 0.02  # resting on the plane
-    assert "ball at" in capsys.readouterr().out
+    run_readme_loop(ray_cluster[1], monkeypatch, capsys)
 
 
 def test_two_replicas_answer_the_contacts_of_the_embedded_service(ray_cluster, embedded):
