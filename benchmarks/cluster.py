@@ -86,6 +86,40 @@ def sequential(url: str, requests: int) -> dict:
     }
 
 
+def interleaved(urls: dict, rounds: int, block: int) -> dict:
+    """p50/p99 of 10-pair requests to each service, one client each, in alternating blocks
+    of ``block`` requests (``rounds`` times): the machine's drifting speed hits both."""
+    clients = {name: Client(url, timeout=300) for name, url in urls.items()}
+    seconds: dict = {name: [] for name in urls}
+    try:
+        meshes = {
+            name: c.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+            for name, c in clients.items()
+        }
+        query = columns(10, seed=2)
+        for name, client in clients.items():
+            for _ in range(20):
+                client.find_contacts([meshes[name]], **query)
+        for _ in range(rounds):
+            for name, client in clients.items():
+                for _ in range(block):
+                    start = time.perf_counter()
+                    client.find_contacts([meshes[name]], **query)
+                    seconds[name].append(time.perf_counter() - start)
+    finally:
+        for client in clients.values():
+            client.close()
+    out = {}
+    for name, values in seconds.items():
+        ms = np.array(values) * 1e3
+        out[name] = {
+            "requests": len(ms),
+            "p50_ms": float(np.percentile(ms, 50)),
+            "p99_ms": float(np.percentile(ms, 99)),
+        }
+    return out
+
+
 def loaded(url: str, clients: int, seconds: float) -> dict:
     """Throughput and latency of ``clients`` closed-loop clients of 10-pair requests."""
     with Client(url, timeout=300) as setup:
@@ -248,6 +282,15 @@ def main() -> None:
                 row = {"loaded": loaded(url, args.clients, args.seconds)}
                 if replicas == 1:
                     row["sequential"] = sequential(url, args.requests)
+                    with ServiceProcess(  # the plain service beside it, in alternating blocks
+                        tmp / "plain-beside",
+                        env={**os.environ, **shared},
+                        settings={"engine_threads": 1, "engine_concurrency": cpus},
+                    ) as service:
+                        rounds = max(2, args.requests // 50)
+                        row["interleaved"] = interleaved(
+                            {"plain": service.url, "serve": url}, rounds, 50
+                        )
                 out["serve"][replicas] = row
                 print(f"serve, {replicas} replica(s): {row}")
         finally:
@@ -272,6 +315,14 @@ def main() -> None:
     hop = out["serve"][counts[0]]["sequential"]["p50_ms"] - plain["shared"]["sequential"]["p50_ms"]
     print("\n== summary")
     print(f"Serve hop (10 pairs, p50): {hop:+.2f} ms over the plain service (shared store)")
+    if "interleaved" in out["serve"].get(1, {}):
+        plain_ms, serve_ms = (
+            out["serve"][1]["interleaved"][k]["p50_ms"] for k in ("plain", "serve")
+        )
+        print(
+            f"  interleaved blocks of 50: plain {plain_ms:.2f} ms, Serve {serve_ms:.2f} ms:"
+            f" {serve_ms - plain_ms:+.2f} ms"
+        )
     base = out["serve"][counts[0]]["loaded"]["requests_per_second"]
     for replicas in counts:
         row = out["serve"][replicas]["loaded"]

@@ -116,4 +116,6 @@ def test_the_cluster_compose_file_runs_the_tested_commands_with_real_settings():
         for variable in service["environment"]:
             if variable.startswith("MRDEM_"):
                 assert variable[len("MRDEM_") :].lower() in fields, f"{variable} is no setting"
+        assert service["environment"]["RAY_SERVE_ENABLE_HA_PROXY"] == "1"  # as tested
+        assert service["environment"]["RAY_SERVE_ENABLE_DIRECT_INGRESS"] == "1"
     assert 'pip install ".${EXTRAS:+[$EXTRAS]}"' in DOCKERFILE.read_text()
