@@ -4,20 +4,26 @@ store, the app deployed on Ray Serve (``service.cluster.application``).
 
 1. **The Serve hop**: one client sending 10-pair contacts requests one after another, p50 and
    p99 through Serve (1 replica) against the plain service (``python -m service``, uvicorn)
-   over the same shared store and against the embedded one (SQLite and files).
+   over the same shared store and against the embedded one (SQLite and files); then the
+   plain service and Serve side by side in alternating blocks of 50 requests (the
+   machine's drifting speed hits both alike).
 2. **Replicas**: ``--clients`` closed-loop clients sending 10-pair requests for
    ``--seconds``: requests/s, p50, p99 with 1, 2, … replicas (``--replicas``) of
    ``--replica-cpus`` CPUs each, and the plain service beside them.
 3. **A 10,000-pair batch on 1 and on 2 nodes** (1 CPU each): on one node the replica
    searches it alone; on two it is split into two Ray tasks, one a node
-   (``MRDEM_SPLIT_PAIRS``); medians of ``--repeats`` requests after a warm one.
+   (``MRDEM_SPLIT_PAIRS``); medians of ``--repeats`` requests after a warm one: the whole
+   request, and the search alone (the answer's ``stats.seconds``: split, run and merged,
+   without decoding, encoding and transfer).
 
 Needs ``mrdem[cluster]`` and the PostgreSQL server binaries. The client threads run on the
 same machine as the cluster: on 2 cores they take CPU from it (say so when quoting).
 
     .venv/bin/python benchmarks/cluster.py [--quick] [--replicas 1,2] [--clients 8] [--haproxy]
+        [--only serve|batch]
 
-Writes ``bench-results/cluster.json`` (``cluster-haproxy.json`` with ``--haproxy``).
+Writes ``bench-results/cluster.json`` (``cluster-haproxy.json`` with ``--haproxy``;
+``-serve``/``-batch`` before ``.json`` with ``--only``).
 """
 
 from __future__ import annotations
@@ -166,16 +172,19 @@ def big_batch(url: str, pairs: int, repeats: int) -> dict:
         mesh = client.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
         query = columns(pairs, seed=5)
         found = client.find_contacts([mesh], **query)  # warm: trees and banks where it runs
-        seconds = []
+        seconds, searches = [], []
         for _ in range(repeats):
             start = time.perf_counter()
-            client.find_contacts([mesh], **query)
+            answer = client.find_contacts([mesh], **query)
             seconds.append(time.perf_counter() - start)
+            searches.append(answer.stats["seconds"])  # the search (split, run, merged) alone
     return {
         "pairs": pairs,
         "contacts": int(found.offsets[-1]),
         "seconds": seconds,
         "median_s": float(np.median(seconds)),
+        "search_seconds": searches,
+        "search_median_s": float(np.median(searches)),
     }
 
 
@@ -230,6 +239,11 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=10_000, help="pairs of the big batch")
     parser.add_argument("--repeats", type=int, default=5, help="big-batch requests measured")
     parser.add_argument(
+        "--only",
+        choices=("serve", "batch"),
+        help="only the Serve measures (1, 2), or the batch (3)",
+    )
+    parser.add_argument(
         "--haproxy",
         action="store_true",
         help="Serve's HAProxy ingress straight to the replicas' HTTP servers"
@@ -256,7 +270,7 @@ def main() -> None:
             "MRDEM_OBJECT_STORE_ENDPOINT": s3.endpoint,
         }
         plain = {}
-        for name, env in (("embedded", {}), ("shared", shared)):
+        for name, env in (("embedded", {}), ("shared", shared)) if args.only != "batch" else ():
             with ServiceProcess(
                 tmp / f"plain-{name}",
                 env={**os.environ, **env},
@@ -277,7 +291,7 @@ def main() -> None:
         cluster = RayCluster(1, cpus, store)
         try:
             out["serve"] = {}
-            for replicas in counts:
+            for replicas in counts if args.only != "batch" else ():
                 url = cluster.deploy(replicas, args.replica_cpus)
                 row = {"loaded": loaded(url, args.clients, args.seconds)}
                 if replicas == 1:
@@ -297,7 +311,7 @@ def main() -> None:
             cluster.close()
 
         out["batch"] = {}
-        for nodes in (1, 2):
+        for nodes in (1, 2) if args.only != "serve" else ():
             store = {**store, "store_url": postgres.database(), "object_store_url": s3.bucket()}
             cluster = RayCluster(nodes, 1, store)
             try:
@@ -312,8 +326,21 @@ def main() -> None:
         postgres.stop()
         s3.stop()
 
-    hop = out["serve"][counts[0]]["sequential"]["p50_ms"] - plain["shared"]["sequential"]["p50_ms"]
     print("\n== summary")
+    if out["serve"]:
+        summarise_serve(out, plain, counts)
+    if out["batch"]:
+        summarise_batch(out, args.pairs)
+    name = "cluster-haproxy.json" if args.haproxy else "cluster.json"
+    if args.only:
+        name = name.replace(".json", f"-{args.only}.json")
+    OUT.mkdir(exist_ok=True)
+    (OUT / name).write_text(json.dumps(out, indent=2, default=str))
+    print(f"wrote {OUT / name}")
+
+
+def summarise_serve(out: dict, plain: dict, counts: list[int]) -> None:
+    hop = out["serve"][counts[0]]["sequential"]["p50_ms"] - plain["shared"]["sequential"]["p50_ms"]
     print(f"Serve hop (10 pairs, p50): {hop:+.2f} ms over the plain service (shared store)")
     if "interleaved" in out["serve"].get(1, {}):
         plain_ms, serve_ms = (
@@ -331,12 +358,15 @@ def main() -> None:
             f" ({row['requests_per_second'] / base:.2f}x), p50 {row['p50_ms']:.1f} ms,"
             f" p99 {row['p99_ms']:.1f} ms"
         )
-    one, two = out["batch"][1]["median_s"], out["batch"][2]["median_s"]
-    print(f"{args.pairs:,}-pair batch: 1 node {one:.3f} s, 2 nodes {two:.3f} s ({one / two:.2f}x)")
-    OUT.mkdir(exist_ok=True)
-    name = "cluster-haproxy.json" if args.haproxy else "cluster.json"
-    (OUT / name).write_text(json.dumps(out, indent=2, default=str))
-    print(f"wrote {OUT / name}")
+
+
+def summarise_batch(out: dict, pairs: int) -> None:
+    for key, what in (("median_s", "request"), ("search_median_s", "search in the service")):
+        one, two = out["batch"][1][key], out["batch"][2][key]
+        print(
+            f"{pairs:,}-pair batch, {what}: 1 node {one:.3f} s, 2 nodes {two:.3f} s"
+            f" ({one / two:.2f}x)"
+        )
 
 
 if __name__ == "__main__":

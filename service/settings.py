@@ -111,6 +111,11 @@ class Settings(BaseSettings):
         8, ge=1, description="tasks a split contacts request runs as, at most"
     )
     task_cpus: float = Field(1.0, gt=0, description="CPUs of each contacts task")
+    replica_access_log: bool = Field(
+        False,
+        description="replicas log every request (Ray Serve's access log; /metrics counts them"
+        " either way): off saves a log line's work on every request",
+    )
 
     @field_validator("store_url")
     @classmethod

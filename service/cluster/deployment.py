@@ -95,6 +95,7 @@ def application(settings: Settings, replicas: int, cpus: float) -> serve.Applica
         ray_actor_options={"num_cpus": cpus, "runtime_env": {"env_vars": env}},
         max_ongoing_requests=max(8, 4 * int(cpus)),
         health_check_period_s=5,
+        logging_config={"enable_access_log": settings.replica_access_log},
     )
     return deployment.bind(settings.model_dump(mode="json"))
 
