@@ -1,5 +1,5 @@
 """A real Ray cluster on this machine for the ``cluster`` tests (``make test-cluster``): a
-head (no CPUs: Ray's control processes and Serve's proxy) and two worker nodes on loopback,
+head (no CPUs: Ray's control processes and Serve's proxy) and three worker nodes on loopback,
 a PostgreSQL server and an S3-compatible server (moto), and the service deployed on Serve
 (two replicas) over them."""
 
@@ -46,7 +46,7 @@ def ray_cluster(postgres, s3, tmp_path_factory):
             },
         },
     )
-    for _ in range(2):
+    for _ in range(3):
         cluster.add_node(**NODE)
     ray.init(address=cluster.address, namespace=NAMESPACE)
     port = free_port()
@@ -59,6 +59,7 @@ def ray_cluster(postgres, s3, tmp_path_factory):
         scene_cpus=0.5,
         task_cpus=0.5,
         split_pairs=1000,
+        split_chunks=2,  # two runs among three nodes: where they go is a choice
     )
     serve.start(proxy_location="HeadOnly", http_options={"host": "127.0.0.1", "port": port})
     serve.run(application(settings, 2, 0.5), name=APP_NAME, route_prefix="/")
