@@ -65,18 +65,20 @@ class RaySplitter:
     def _alive(self) -> set[str]:
         return {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0) > 0}
 
-    def chunks(self, pairs: int) -> int:
-        """Runs to cut ``pairs`` into: one per alive node with CPUs, at most the setting."""
-        return max(1, min(self.most, len(self._alive()), pairs))
+    def chunks(self, pairs: int, alive: set[str] | None = None) -> int:
+        """Runs to cut ``pairs`` into: one per alive node with CPUs (``alive``, asked of
+        Ray when not given), at most the setting."""
+        alive = self._alive() if alive is None else alive
+        return max(1, min(self.most, len(alive), pairs))
 
     def find(self, meshes, columns, kernel, hierarchy, precision) -> dict:
         threads = max(1, int(round(self.cpus)))
         settings = self.settings.model_copy(update={"engine_threads": threads})
-        runs = split(columns, self.chunks(len(columns[0])))
+        alive = self._alive()
+        runs = split(columns, self.chunks(len(columns[0]), alive))
         key = tuple(meshes)
         with self._lock:
             before = self._nodes.get(key, [])
-        alive = self._alive()
         warm = [node for node in dict.fromkeys(before) if node in alive]
         parts = []
         for k, run in enumerate(runs):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import threading
 import time
+from collections import OrderedDict
 
 import ray
 from ray.exceptions import ActorDiedError, ActorUnavailableError, RayTaskError
@@ -25,6 +26,7 @@ from ..store import Store, open_store
 __all__ = ["ActorScenes", "SceneActor", "actor_name"]
 
 NAMESPACE = "mrdem"
+HANDLES = 4096  # scene actors' handles a replica keeps (least recently used dropped)
 _GONE = (ActorDiedError, ActorUnavailableError)
 
 
@@ -73,24 +75,41 @@ class ActorScenes:
     def __init__(
         self, store: Store, settings: Settings, cpus: float = 1.0, idle: float = 600.0
     ) -> None:
-        self.store, self.settings, self.cpus, self.idle = store, settings, cpus, idle
+        self.store, self.cpus, self.idle = store, cpus, idle
+        threads = max(1, int(round(cpus)))
+        self.actor_settings = settings.model_copy(
+            update={"engine_threads": threads, "engine_concurrency": 1, "warmup": False}
+        )
         self._remote = ray.remote(SceneActor)
+        self._handles: OrderedDict[str, object] = OrderedDict()  # actor name → handle
+        self._lock = threading.Lock()
         self.recreate_for = 120.0  # seconds a call goes on recreating a scene's dead actor
 
     def actor(self, owner: str, scene_id: str):
-        """The scene's actor, created if it does not exist."""
-        threads = max(1, int(round(self.cpus)))
-        settings = self.settings.model_copy(
-            update={"engine_threads": threads, "engine_concurrency": 1, "warmup": False}
-        )
-        return self._remote.options(
-            name=actor_name(owner, scene_id),
+        """The scene's actor (the handle this replica holds; else found or created by
+        name)."""
+        name = actor_name(owner, scene_id)
+        with self._lock:
+            if name in self._handles:
+                self._handles.move_to_end(name)
+                return self._handles[name]
+        handle = self._remote.options(
+            name=name,
             namespace=NAMESPACE,
             get_if_exists=True,
             lifetime="detached",  # not tied to the replica that made it
             num_cpus=self.cpus,
             max_restarts=0,  # a dead actor is recreated by the next request, from the store
-        ).remote(settings, self.idle)
+        ).remote(self.actor_settings, self.idle)
+        with self._lock:
+            self._handles[name] = handle
+            while len(self._handles) > HANDLES:
+                self._handles.popitem(last=False)
+        return handle
+
+    def _forget(self, owner: str, scene_id: str) -> None:
+        with self._lock:
+            self._handles.pop(actor_name(owner, scene_id), None)
 
     def _call(self, owner: str, scene_id: str, method: str, *args):
         deadline = time.monotonic() + self.recreate_for
@@ -102,6 +121,7 @@ class ActorScenes:
             except RayTaskError as exc:  # the scene's own answer: 404, 409, 422 …
                 raise exc.cause from None
             except _GONE:  # its node died or it left: the next actor loads the stored state
+                self._forget(owner, scene_id)
                 if time.monotonic() > deadline:
                     raise
             time.sleep(pause)
@@ -121,6 +141,7 @@ class ActorScenes:
 
     def drop(self, owner: str, scene_id: str) -> None:
         """The scene was deleted: its actor goes."""
+        self._forget(owner, scene_id)
         try:
             actor = ray.get_actor(actor_name(owner, scene_id), namespace=NAMESPACE)
         except ValueError:  # no such actor

@@ -115,7 +115,6 @@ async def put_state(
     scene_id: str,
     request: Request,
     owner: Owner,
-    store: Storage,
     engine: Engine,
     scenes: Live,
     update: Annotated[StateUpdate, body(StateUpdate)],

@@ -229,6 +229,7 @@ class _DiskCache:
         self.limit = int(limit)
         self._lock = threading.Lock()
         self._sizes: OrderedDict[str, int] = OrderedDict()
+        self._total = 0
         for folder in FOLDERS:
             (root / folder).mkdir(parents=True, exist_ok=True)
             for stale in (root / folder).glob(".*.tmp"):
@@ -240,6 +241,7 @@ class _DiskCache:
         )
         for _, name, size in found:
             self._sizes[name] = size
+            self._total += size
         self._evict()
 
     def get(self, name: str) -> bytes | None:
@@ -248,8 +250,7 @@ class _DiskCache:
         except OSError:
             return None
         with self._lock:
-            self._sizes[name] = len(data)
-            self._sizes.move_to_end(name)
+            self._note(name, len(data))
         return data
 
     def put(self, name: str, data: bytes) -> None:
@@ -260,24 +261,29 @@ class _DiskCache:
         except OSError:  # a full disk costs a later download, nothing more
             return
         with self._lock:
-            self._sizes[name] = len(data)
-            self._sizes.move_to_end(name)
+            self._note(name, len(data))
         self._evict()
+
+    def _note(self, name: str, size: int) -> None:  # lock held
+        self._total += size - self._sizes.get(name, 0)
+        self._sizes[name] = size
+        self._sizes.move_to_end(name)
 
     def drop(self, name: str) -> None:
         with self._lock:
-            self._sizes.pop(name, None)
+            self._total -= self._sizes.pop(name, 0)
         (self.root / name).unlink(missing_ok=True)
 
     def _evict(self) -> None:
         with self._lock:
-            while self._sizes and sum(self._sizes.values()) > self.limit:
-                name, _ = self._sizes.popitem(last=False)
+            while self._sizes and self._total > self.limit:
+                name, size = self._sizes.popitem(last=False)
+                self._total -= size
                 (self.root / name).unlink(missing_ok=True)
 
     def bytes(self) -> int:
         with self._lock:
-            return sum(self._sizes.values())
+            return self._total
 
 
 def _status(exc) -> int:

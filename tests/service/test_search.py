@@ -12,25 +12,19 @@ from hypothesis import strategies as st
 from engine import build_tree, shapes
 from service.banks import BankCache
 from service.search import find, merge, split
+from service.store import Store
 
 NAMES = ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs")
 
 
-class _Trees:
-    """What find() needs of a store: trees by id."""
-
-    def __init__(self, trees: dict) -> None:
-        self.trees = trees
-
-    def tree(self, mesh_id: str):
-        return self.trees[mesh_id]
-
-
 @pytest.fixture(scope="module")
-def store():
-    return _Trees(
-        {"box": build_tree(shapes.box(), 0.05), "ball": build_tree(shapes.icosphere(2), 0.03)}
-    )
+def store(tmp_path_factory):
+    """The embedded store holding the two trees, under the ids the batches name."""
+    store = Store(tmp_path_factory.mktemp("search"))
+    store.put_tree("box", build_tree(shapes.box(), 0.05))
+    store.put_tree("ball", build_tree(shapes.icosphere(2), 0.03))
+    yield store
+    store.close()
 
 
 def _columns(n: int, seed: int):

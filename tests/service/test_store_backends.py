@@ -200,11 +200,15 @@ def test_the_local_copy_of_trees_stays_within_its_bytes(tmp_path):
     assert cache.get("trees/t2.npz") is None and cache.get("trees/t1.npz") is not None
     cache.put("trees/huge.npz", b"x" * 5000)  # bigger than the whole cache: not kept
     assert cache.get("trees/huge.npz") is None
+    on_disk = sum(f.stat().st_size for f in (tmp_path / "cache" / "trees").glob("*.npz"))
+    assert cache.bytes() == on_disk  # the running total is what the files hold
+    cache.drop("trees/t1.npz")
+    assert cache.bytes() == on_disk - 1000
     again = _DiskCache(tmp_path / "cache", limit=1000)  # reopened smaller: trimmed
     assert again.bytes() <= 1000
 
 
-def test_a_bucket_that_is_gone_is_a_clear_error(s3, tmp_path):
+def test_a_missing_blob_and_a_malformed_bucket_url_are_clear_errors(s3, tmp_path):
     blobs = S3Blobs(s3.bucket(), s3.endpoint)
     with pytest.raises(FileNotFoundError):
         blobs.get("trees/nothing.npz")
