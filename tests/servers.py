@@ -10,7 +10,12 @@ import pytest
 
 from mrdem_common.serving import free_port
 
-__all__ = ["descendants", "free_port", "missing"]
+__all__ = ["HAPROXY_INGRESS", "descendants", "free_port", "missing", "process_name"]
+
+#: Serve's HAProxy ingress straight to the replicas' own HTTP servers (Ray 2.60 feature
+#: flags, read by the processes a Ray node starts): what docker/compose.cluster.yaml and the
+#: README's commands set.
+HAPROXY_INGRESS = {"RAY_SERVE_ENABLE_HA_PROXY": "1", "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1"}
 
 
 def missing(what: str):
@@ -35,3 +40,11 @@ def descendants(pid: int) -> list[int]:
             found.append(child)
             todo.append(child)
     return found
+
+
+def process_name(pid: int) -> str:
+    """The command name of ``pid`` (``""`` once it is gone)."""
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return ""

@@ -1,7 +1,8 @@
 """A real Ray cluster on this machine for the ``cluster`` tests (``make test-cluster``): a
-head (no CPUs: Ray's control processes and Serve's proxy) and three worker nodes on loopback,
-a PostgreSQL server and an S3-compatible server (moto), and the service deployed on Serve
-(two replicas) over them."""
+head (no CPUs: Ray's control processes and Serve's HAProxy ingress) and three worker nodes
+on loopback, each at an address of its own (127.0.0.2–4), a PostgreSQL server and an
+S3-compatible server (moto), and the service deployed on Serve (two replicas) over them —
+the configuration of docker/compose.cluster.yaml."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import time
 
 import httpx
 import pytest
-from servers import free_port, missing
+from servers import HAPROXY_INGRESS, descendants, free_port, missing, process_name
 
 NODE = {"num_cpus": 2, "object_store_memory": 10**8}
 
@@ -30,6 +31,7 @@ def ray_cluster(postgres, s3, tmp_path_factory):
     from service.settings import Settings
 
     os.environ.setdefault("NUMBA_CACHE_DIR", str(tmp_path_factory.mktemp("numba")))
+    os.environ.update(HAPROXY_INGRESS)  # before the nodes start: their processes read it
     cluster = Cluster(
         initialize_head=True,
         head_node_args={
@@ -46,8 +48,11 @@ def ray_cluster(postgres, s3, tmp_path_factory):
             },
         },
     )
-    for _ in range(3):
-        cluster.add_node(**NODE)
+    # Serve hands each node's replicas ports from 30000 up: nodes sharing one address would
+    # collide (the second replica bound 30001, HAProxy listed 30000), as separate machines
+    # or containers do not
+    for k in range(3):
+        cluster.add_node(**NODE, node_ip_address=f"127.0.0.{k + 2}")
     ray.init(address=cluster.address, namespace=NAMESPACE)
     port = free_port()
     settings = Settings(
@@ -68,6 +73,7 @@ def ray_cluster(postgres, s3, tmp_path_factory):
     while httpx.get(f"{url}/readyz", timeout=30).status_code != 200:
         assert time.monotonic() < deadline, "the Serve endpoint never became ready"
         time.sleep(0.5)
+    assert "haproxy" in [process_name(pid) for pid in descendants(os.getpid())]
     try:
         yield cluster, url, settings
     finally:  # every process of the cluster stopped at once (Serve's drain takes 20-30 s)

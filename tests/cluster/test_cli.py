@@ -16,7 +16,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from servers import descendants, free_port
+from servers import HAPROXY_INGRESS, descendants, free_port, process_name
 
 from clients import Client
 from engine import shapes
@@ -24,17 +24,6 @@ from engine import shapes
 pytestmark = pytest.mark.cluster
 
 BIN = Path(sys.executable).parent
-#: Serve's HAProxy ingress straight to the replicas' own HTTP servers (Ray 2.60 feature
-#: flags, read by the processes `ray start` starts). Not in the multi-node fixture: nodes
-#: sharing one IP collide on the replicas' ports (each node counts from 30000).
-HAPROXY_INGRESS = {"RAY_SERVE_ENABLE_HA_PROXY": "1", "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1"}
-
-
-def _name(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/comm").read_text().strip()
-    except OSError:  # gone meanwhile
-        return ""
 
 
 def test_mrdem_cluster_serve_deploys_on_a_ray_cluster(postgres, s3, tmp_path):
@@ -72,7 +61,7 @@ def test_mrdem_cluster_serve_deploys_on_a_ray_cluster(postgres, s3, tmp_path):
             mesh = client.upload_mesh(shapes.box(), epsilon=0.05)
             assert client.mesh(mesh.id).id == mesh.id
         assert "X-Mrdem-Replica" in httpx.get(f"{url}/healthz").headers  # a replica answered
-        names = [_name(pid) for pid in descendants(head.pid)]
+        names = [process_name(pid) for pid in descendants(head.pid)]
         assert "haproxy" in names  # … through Serve's HAProxy ingress
     finally:  # every process of this Ray cluster, at once (a graceful stop takes 30 s)
         for pid in [*descendants(head.pid), head.pid]:

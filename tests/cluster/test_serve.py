@@ -75,6 +75,11 @@ def test_two_replicas_answer_the_contacts_of_the_embedded_service(ray_cluster, e
             _same(cluster.find_contacts(**query), expected)
             time.sleep(0.05)
         assert len(set(replicas)) == 2, replicas  # both replicas answered, the same
+    from ray.util.state import list_actors
+
+    replica_actors = list_actors(filters=[("state", "=", "ALIVE")], limit=1000)
+    nodes = {a.node_id for a in replica_actors if a.class_name.startswith("ServeReplica:")}
+    assert len(nodes) == 2  # on two nodes, behind HAProxy (both listening on their port 30000)
 
 
 def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray_cluster, embedded):
