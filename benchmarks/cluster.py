@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import sys
 import tempfile
@@ -126,42 +127,61 @@ def interleaved(urls: dict, rounds: int, block: int) -> dict:
     return out
 
 
-def loaded(url: str, clients: int, seconds: float) -> dict:
-    """Throughput and latency of ``clients`` closed-loop clients of 10-pair requests."""
-    with Client(url, timeout=300) as setup:
-        mesh = setup.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+def load(url: str, mesh: int, threads: int, start_at: float, seconds: float) -> tuple:
+    """Seconds of each 10-pair request sent by ``threads`` closed-loop clients from
+    ``start_at`` (``time.time()``) for ``seconds`` (each client warm before), and how many
+    clients were not warm by then."""
     query = columns(10, seed=3)
     latencies: list[float] = []
+    late = []
     lock = threading.Lock()
-    begin = threading.Barrier(clients + 1)
 
     def work():
         mine = []
         with Client(url, timeout=300) as client:
             client.find_contacts([mesh], **query)  # warm: connection, trees
-            begin.wait()
-            stop = time.perf_counter() + seconds
-            while time.perf_counter() < stop:
+            wait = start_at - time.time()
+            if wait < 0:
+                late.append(1)
+            time.sleep(max(0.0, wait))
+            stop = start_at + seconds
+            while time.time() < stop:
                 start = time.perf_counter()
                 client.find_contacts([mesh], **query)
                 mine.append(time.perf_counter() - start)
         with lock:
             latencies.extend(mine)
 
-    threads = [threading.Thread(target=work) for _ in range(clients)]
-    for t in threads:
+    threads_ = [threading.Thread(target=work) for _ in range(threads)]
+    for t in threads_:
         t.start()
-    begin.wait()
-    start = time.perf_counter()
-    for t in threads:
+    for t in threads_:
         t.join()
-    wall = time.perf_counter() - start
+    return latencies, len(late)
+
+
+def loaded(url: str, clients: int, seconds: float, processes: int = 1) -> dict:
+    """Throughput and latency of ``clients`` closed-loop clients of 10-pair requests, in
+    ``processes`` client processes (one process's GIL caps what its threads can send)."""
+    with Client(url, timeout=300) as setup:
+        mesh = setup.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+    start_at = time.time() + (3.0 if processes == 1 else 6.0)  # every client warm by then
+    shares = [clients // processes + (i < clients % processes) for i in range(processes)]
+    if processes == 1:
+        parts = [load(url, mesh, clients, start_at, seconds)]
+    else:
+        context = multiprocessing.get_context("spawn")  # no fork of a Ray driver
+        with context.Pool(processes) as pool:
+            parts = pool.starmap(load, [(url, mesh, n, start_at, seconds) for n in shares])
+    latencies = [x for part, _ in parts for x in part]
     ms = np.array(latencies) * 1e3
     return {
         "clients": clients,
+        "processes": processes,
+        "late_clients": sum(late for _, late in parts),
         "requests": len(ms),
-        "seconds": wall,
-        "requests_per_second": len(ms) / wall,
+        "seconds": seconds,
+        "requests_per_second": len(ms) / seconds,
         "p50_ms": float(np.percentile(ms, 50)),
         "p99_ms": float(np.percentile(ms, 99)),
     }
@@ -222,8 +242,7 @@ class RayCluster:
         print(f"  {replicas} replica(s) deployed in {time.perf_counter() - start:.1f} s")
         return self.url
 
-    def close(self) -> None:
-        self.serve.shutdown()
+    def close(self) -> None:  # no serve.shutdown(): it can wait 30 s for the controller
         self.ray.shutdown()
         self.cluster.shutdown()
 
@@ -234,6 +253,9 @@ def main() -> None:
     parser.add_argument("--replicas", default="1,2", help="replica counts to measure")
     parser.add_argument("--replica-cpus", type=float, default=1.0)
     parser.add_argument("--clients", type=int, default=8)
+    parser.add_argument(
+        "--client-processes", type=int, default=1, help="processes the clients are spread over"
+    )
     parser.add_argument("--seconds", type=float, default=15.0)
     parser.add_argument("--requests", type=int, default=400, help="sequential requests")
     parser.add_argument("--pairs", type=int, default=10_000, help="pairs of the big batch")
@@ -278,7 +300,9 @@ def main() -> None:
             ) as service:
                 plain[name] = {"sequential": sequential(service.url, args.requests)}
                 if name == "shared":
-                    plain[name]["loaded"] = loaded(service.url, args.clients, args.seconds)
+                    plain[name]["loaded"] = loaded(
+                        service.url, args.clients, args.seconds, args.client_processes
+                    )
             print(f"plain service, {name} store: {plain[name]}")
         out["plain"] = plain
 
@@ -293,7 +317,7 @@ def main() -> None:
             out["serve"] = {}
             for replicas in counts if args.only != "batch" else ():
                 url = cluster.deploy(replicas, args.replica_cpus)
-                row = {"loaded": loaded(url, args.clients, args.seconds)}
+                row = {"loaded": loaded(url, args.clients, args.seconds, args.client_processes)}
                 if replicas == 1:
                     row["sequential"] = sequential(url, args.requests)
                     with ServiceProcess(  # the plain service beside it, in alternating blocks
