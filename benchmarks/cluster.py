@@ -7,14 +7,18 @@ store, the app deployed on Ray Serve (``service.cluster.application``).
    over the same shared store and against the embedded one (SQLite and files); then the
    plain service and Serve side by side in alternating blocks of 50 requests (the
    machine's drifting speed hits both alike).
-2. **Replicas**: ``--clients`` closed-loop clients sending 10-pair requests for
-   ``--seconds``: requests/s, p50, p99 with 1, 2, … replicas (``--replicas``) of
-   ``--replica-cpus`` CPUs each, and the plain service beside them.
+2. **Replicas**: ``--clients`` closed-loop clients (in ``--client-processes``
+   processes) sending 10-pair requests for ``--seconds``: requests/s, p50, p99 with 1, 2,
+   … replicas (``--replicas``) of ``--replica-cpus`` CPUs each, and the plain service
+   beside them.
 3. **A 10,000-pair batch on 1 and on 2 nodes** (1 CPU each): on one node the replica
    searches it alone; on two it is split into two Ray tasks, one a node
    (``MRDEM_SPLIT_PAIRS``); medians of ``--repeats`` requests after a warm one: the whole
    request, and the search alone (the answer's ``stats.seconds``: split, run and merged,
-   without decoding, encoding and transfer).
+   without decoding, encoding and transfer). Beside it, the ceiling: the same batch
+   searched by one plain process, then as two halves by two processes at once (no Ray, no
+   service) — what the machine's cores give two searches (vCPUs that share a core give
+   less than 2×).
 
 Needs ``mrdem[cluster]`` and the PostgreSQL server binaries. The client threads run on the
 same machine as the cluster: on 2 cores they take CPU from it (say so when quoting).
@@ -54,6 +58,7 @@ from mrdem_common.serving import ServiceProcess, free_port  # noqa: E402
 
 OUT = ROOT / "bench-results"
 MESH = shapes.icosphere(3, radius=0.5)  # 1,280 triangles
+COLUMNS = ("a", "position_a", "orientation_a", "b", "position_b", "orientation_b")
 
 
 def columns(n: int, seed: int) -> dict:
@@ -208,6 +213,48 @@ def big_batch(url: str, pairs: int, repeats: int) -> dict:
     }
 
 
+def _search_halves(part: int, parts: int, pairs: int, repeats: int, barrier, results) -> None:
+    """In a process of its own: run ``part`` of ``parts`` of the big batch's pairs,
+    ``repeats`` times, each after ``barrier`` (every part starts together)."""
+    from engine import DEFAULT_PRECISION, TreeBank, build_tree
+
+    bank = TreeBank([build_tree(MESH, epsilon=0.01)], DEFAULT_PRECISION)
+    query = columns(pairs, seed=5)
+    cut = np.linspace(0, pairs, parts + 1).round().astype(np.int64)
+    run = [query[k][cut[part] : cut[part + 1]] for k in COLUMNS]
+    bank.find_contacts(*run, kernel="hybrid", threads=1)  # warm: banks, pages
+    seconds = []
+    for _ in range(repeats):
+        barrier.wait()
+        start = time.perf_counter()
+        bank.find_contacts(*run, kernel="hybrid", threads=1)
+        seconds.append(time.perf_counter() - start)
+    results.put((part, seconds))
+
+
+def ceiling(pairs: int, repeats: int) -> dict:
+    """What this machine gives two processes at once, without Ray or the service: the big
+    batch searched whole by one process, then as two halves by two processes starting
+    together (one engine thread each); medians of ``repeats``."""
+    context = multiprocessing.get_context("spawn")
+    out = {}
+    for parts in (1, 2):
+        barrier, results = context.Barrier(parts), context.Queue()
+        processes = [
+            context.Process(
+                target=_search_halves, args=(k, parts, pairs, repeats, barrier, results)
+            )
+            for k in range(parts)
+        ]
+        for process in processes:
+            process.start()
+        times = [results.get(timeout=600)[1] for _ in processes]
+        for process in processes:
+            process.join()
+        out[parts] = float(np.median(np.max(times, axis=0)))  # the slower part of each run
+    return {"one_process_s": out[1], "two_processes_s": out[2], "speedup": out[1] / out[2]}
+
+
 class RayCluster:
     """A head (no CPUs) and ``nodes`` worker nodes of ``cpus`` CPUs, the app deployed."""
 
@@ -335,6 +382,9 @@ def main() -> None:
             cluster.close()
 
         out["batch"] = {}
+        if args.only != "serve":
+            out["batch_ceiling"] = ceiling(args.pairs, args.repeats)
+            print(f"{args.pairs:,}-pair batch without Ray: {out['batch_ceiling']}")
         for nodes in (1, 2) if args.only != "serve" else ():
             store = {**store, "store_url": postgres.database(), "object_store_url": s3.bucket()}
             cluster = RayCluster(nodes, 1, store)
@@ -391,6 +441,11 @@ def summarise_batch(out: dict, pairs: int) -> None:
             f"{pairs:,}-pair batch, {what}: 1 node {one:.3f} s, 2 nodes {two:.3f} s"
             f" ({one / two:.2f}x)"
         )
+    top = out["batch_ceiling"]
+    print(
+        f"{pairs:,}-pair batch, no Ray: 1 process {top['one_process_s']:.3f} s,"
+        f" 2 processes {top['two_processes_s']:.3f} s ({top['speedup']:.2f}x: the ceiling)"
+    )
 
 
 if __name__ == "__main__":
