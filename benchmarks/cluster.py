@@ -132,8 +132,9 @@ def interleaved(urls: dict, rounds: int, block: int) -> dict:
     return out
 
 
-def load(url: str, mesh: int, threads: int, start_at: float, seconds: float) -> tuple:
-    """Seconds of each 10-pair request sent by ``threads`` closed-loop clients from
+def load(url: str, mesh, threads: int, start_at: float, seconds: float) -> tuple:
+    """Seconds of each 10-pair request (of the uploaded ``mesh``) sent by ``threads``
+    closed-loop clients from
     ``start_at`` (``time.time()``) for ``seconds`` (each client warm before), and how many
     clients were not warm by then."""
     query = columns(10, seed=3)
