@@ -134,9 +134,8 @@ def interleaved(urls: dict, rounds: int, block: int) -> dict:
 
 def load(url: str, mesh, threads: int, start_at: float, seconds: float) -> tuple:
     """Seconds of each 10-pair request (of the uploaded ``mesh``) sent by ``threads``
-    closed-loop clients from
-    ``start_at`` (``time.time()``) for ``seconds`` (each client warm before), and how many
-    clients were not warm by then."""
+    closed-loop clients from ``start_at`` (``time.time()``) for ``seconds`` (each client
+    warm before), and how many clients were not warm by then."""
     query = columns(10, seed=3)
     latencies: list[float] = []
     late = []
