@@ -4,6 +4,7 @@ the merge of batches searched apart (the chunks of a big request run on a cluste
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
@@ -14,13 +15,17 @@ __all__ = ["BatchSplitter", "find", "merge", "split"]
 
 
 class BatchSplitter(Protocol):
-    """Runs a big contacts request as chunks elsewhere (a cluster's nodes)."""
+    """Runs a big contacts request as runs of pairs: one here, the others elsewhere (a
+    cluster's nodes)."""
 
     def applies(self, pairs: int) -> bool:
         """Whether a request of ``pairs`` pairs is split."""
 
-    def find(self, meshes, columns, kernel, hierarchy, precision) -> dict:
-        """What :func:`find` answers for the whole request."""
+    def find(
+        self, meshes, columns, kernel, hierarchy, precision, here: Callable[[tuple], dict]
+    ) -> dict:
+        """What :func:`find` answers for the whole request; ``here(run)`` is :func:`find`
+        of a run of the columns in this process (its engine threads, its banks)."""
 
 
 _ROWS = ("points", "normals", "overlaps")
@@ -39,19 +44,24 @@ def find(meshes, columns, kernel, hierarchy, precision, threads, store, banks) -
     return _flat([store.tree(m) for m in meshes], columns, kernel, precision)
 
 
-def split(columns, chunks: int) -> list[tuple]:
-    """``columns`` cut into ``chunks`` runs of consecutive pairs (as equal as can be)."""
-    n = len(columns[0])
-    cuts = np.linspace(0, n, chunks + 1).round().astype(np.int64)
-    return [tuple(c[cuts[k] : cuts[k + 1]] for c in columns) for k in range(chunks)]
+def split(columns, weights: Sequence[float]) -> list[tuple]:
+    """``columns`` cut into one run of consecutive pairs per weight (> 0), their lengths in
+    proportion to the weights as near as whole pairs allow (a run may be empty when there
+    are fewer pairs than weights)."""
+    n, shares = len(columns[0]), np.asarray(weights, np.float64)
+    cuts = np.concatenate([[0.0], np.cumsum(shares) / shares.sum() * n]).round().astype(np.int64)
+    cuts[-1] = n
+    return [tuple(c[cuts[k] : cuts[k + 1]] for c in columns) for k in range(len(shares))]
 
 
 def merge(parts: list[dict]) -> dict:
     """One answer of the answers of consecutive runs of pairs, in order: rows
-    concatenated, offsets shifted, statistics summed."""
+    concatenated, offsets shifted, statistics summed; triangle pairs int64."""
+    # triangle pairs may arrive as int32 (half the bytes through a cluster's object store)
     if len(parts) == 1:
-        return parts[0]
-    merged = {name: np.concatenate([p[name] for p in parts]) for name in (*_ROWS, "pairs")}
+        return {**parts[0], "pairs": parts[0]["pairs"].astype(np.int64, copy=False)}
+    merged = {name: np.concatenate([p[name] for p in parts]) for name in _ROWS}
+    merged["pairs"] = np.concatenate([p["pairs"] for p in parts], dtype=np.int64)
     for name in ("offsets", "pair_offsets"):
         pieces, base = [np.zeros(1, np.int64)], 0
         for part in parts:

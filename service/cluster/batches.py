@@ -1,16 +1,23 @@
 """Big contacts requests across the cluster: a request of at least ``MRDEM_SPLIT_PAIRS``
-pairs is cut into runs of consecutive pairs (:func:`service.search.split`), one per node
-with CPUs (at most ``MRDEM_SPLIT_CHUNKS``), each run as a Ray task — on the nodes that ran
-the last request of the same meshes, while they are alive, the others spread; the answers
-are merged in order (:func:`service.search.merge`): the same arrays as one
-process's search. A task loads the trees from the store's blobs (a node keeps a bounded copy
-of those it read: ``data_dir/tree-cache``) and keeps their banks for the next request in its
-worker process."""
+pairs is cut into runs of consecutive pairs (:func:`service.search.split`), at most
+``MRDEM_SPLIT_CHUNKS``: the replica searches the first itself, with its engine threads and
+its banks, while each other run goes to another alive node with CPUs as a Ray task; the
+answers are merged in order (:func:`service.search.merge`): the same arrays as one process's
+search. A run's length is in proportion to the engine threads that search it.
+
+The nodes for a request's meshes are ranked by rendezvous hashing: every replica sends the
+same meshes to the same nodes while they are alive (their trees on disk there, their banks
+in the workers), a node's death moves only its runs, and other meshes rank the nodes
+otherwise (the load spreads). A task loads the trees from the store's blobs (a node keeps a
+bounded copy of those it read: ``data_dir/tree-cache``) and keeps their banks for the next
+request in its worker process; its triangle pairs travel as int32 (half the bytes through
+Ray's object store)."""
 
 from __future__ import annotations
 
+import hashlib
 import threading
-from collections import OrderedDict
+from collections.abc import Callable
 
 import numpy as np
 import ray
@@ -21,7 +28,7 @@ from ..search import find, merge, split
 from ..settings import Settings
 from ..store import Store, open_store
 
-__all__ = ["RaySplitter"]
+__all__ = ["RaySplitter", "ranked"]
 
 _WORKER: dict = {}  # per worker process: its store and banks, opened on first use
 _WORKER_LOCK = threading.Lock()
@@ -37,62 +44,70 @@ def _worker_store(settings: Settings) -> tuple[Store, BankCache]:
 
 
 def _search_chunk(settings: Settings, meshes, columns, kernel, hierarchy, precision, threads):
-    """``(answer, the id of the node it ran on)``."""
+    """:func:`service.search.find` of a run, in a Ray task."""
     # arrays from the object store are read-only: Numba would compile read-only variants
     columns = tuple(np.array(c) for c in columns)
     store, banks = _worker_store(settings)
     found = find(meshes, columns, kernel, hierarchy, precision, threads, store, banks)
-    return found, ray.get_runtime_context().get_node_id()
+    pairs = found["pairs"]
+    if pairs.size == 0 or pairs.max() < 2**31:  # triangle indices: int32 in transit
+        found["pairs"] = pairs.astype(np.int32)
+    return found
+
+
+def ranked(meshes, nodes) -> list[str]:
+    """``nodes`` (ids) in the order of preference for a request of ``meshes`` (ids):
+    highest random weight first (rendezvous hashing), the same order in every process."""
+    key = "\0".join(sorted(set(meshes)))
+
+    def weight(node: str) -> bytes:
+        return hashlib.blake2b(f"{key}\0{node}".encode(), digest_size=8).digest()
+
+    return sorted(nodes, key=weight, reverse=True)
 
 
 class RaySplitter:
-    """The :class:`~service.search.BatchSplitter` of a Ray cluster. The runs of a request go
-    to the nodes that ran the last request of the same meshes (their trees on disk there,
-    their banks in the workers), as far as those nodes are alive and have room; the others
-    are spread."""
-
-    REMEMBERED = 256  # mesh sets whose nodes are remembered
+    """The :class:`~service.search.BatchSplitter` of a Ray cluster: the first run here, the
+    others on the other alive nodes with CPUs that rank first for the request's meshes
+    (soft node affinity: a node without room passes its run on)."""
 
     def __init__(self, settings: Settings, threshold: int, chunks: int, cpus: float) -> None:
         self.settings, self.threshold, self.most, self.cpus = settings, threshold, chunks, cpus
         self._task = ray.remote(_search_chunk)
-        self._nodes: OrderedDict[tuple, list[str]] = OrderedDict()  # mesh ids → nodes
-        self._lock = threading.Lock()
 
     def applies(self, pairs: int) -> bool:
-        return pairs >= self.threshold and self.chunks(pairs) > 1
+        return pairs >= self.threshold and self.most > 1
 
-    def _alive(self) -> set[str]:
-        return {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0) > 0}
+    def others(self) -> list[str]:
+        """The alive nodes with CPUs, this process's node excepted."""
+        here = ray.get_runtime_context().get_node_id()
+        return [
+            n["NodeID"]
+            for n in ray.nodes()
+            if n["Alive"] and n["Resources"].get("CPU", 0) > 0 and n["NodeID"] != here
+        ]
 
-    def chunks(self, pairs: int, alive: set[str] | None = None) -> int:
-        """Runs to cut ``pairs`` into: one per alive node with CPUs (``alive``, asked of
-        Ray when not given), at most the setting."""
-        alive = self._alive() if alive is None else alive
-        return max(1, min(self.most, len(alive), pairs))
-
-    def find(self, meshes, columns, kernel, hierarchy, precision) -> dict:
+    def find(
+        self, meshes, columns, kernel, hierarchy, precision, here: Callable[[tuple], dict]
+    ) -> dict:
+        n = len(columns[0])
+        nodes = ranked(meshes, self.others())[: min(self.most, n) - 1]
+        if not nodes:
+            return here(columns)
         threads = max(1, int(round(self.cpus)))
         settings = self.settings.model_copy(update={"engine_threads": threads})
-        alive = self._alive()
-        runs = split(columns, self.chunks(len(columns[0]), alive))
-        key = tuple(meshes)
-        with self._lock:
-            before = self._nodes.get(key, [])
-        warm = [node for node in dict.fromkeys(before) if node in alive]
+        mine, *runs = split(columns, [self.settings.engine_threads] + [threads] * len(nodes))
         parts = []
-        for k, run in enumerate(runs):
-            strategy = "SPREAD"
-            if k < len(warm):  # back to a node that has the trees
-                strategy = NodeAffinitySchedulingStrategy(
-                    warm[k], soft=True, _spill_on_unavailable=True
-                )
+        for node, run in zip(nodes, runs, strict=True):
+            if len(run[0]) == 0:  # more weight elsewhere than pairs to go round
+                continue
+            strategy = NodeAffinitySchedulingStrategy(node, soft=True, _spill_on_unavailable=True)
             task = self._task.options(num_cpus=self.cpus, scheduling_strategy=strategy)
             parts.append(task.remote(settings, meshes, run, kernel, hierarchy, precision, threads))
-        answers = ray.get(parts)
-        with self._lock:
-            self._nodes[key] = [node for _, node in answers]
-            self._nodes.move_to_end(key)
-            while len(self._nodes) > self.REMEMBERED:
-                self._nodes.popitem(last=False)
-        return merge([found for found, _ in answers])
+        try:
+            found = [here(mine)] if len(mine[0]) else []  # while the tasks run
+        except BaseException:
+            for part in parts:
+                ray.cancel(part)
+            raise
+        return merge([*found, *ray.get(parts)])

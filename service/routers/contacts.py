@@ -76,10 +76,14 @@ async def contacts(
             known(store, owner, mesh_id)
         start = time.perf_counter()
         options = (query.kernel, query.hierarchy, query.precision)
+
+        def here(run: tuple) -> dict:  # in this process: its engine threads, its banks
+            return find(meshes, run, *options, settings.engine_threads, store, banks)
+
         if splitter is not None and splitter.applies(n):  # across the cluster's nodes
-            found = splitter.find(meshes, columns, *options)
+            found = splitter.find(meshes, columns, *options, here=here)
         else:
-            found = find(meshes, columns, *options, settings.engine_threads, store, banks)
+            found = here(columns)
         found["stats"]["seconds"] = time.perf_counter() - start
         stats = ContactStatsOut(**found.pop("stats"))
         # the engine's arrays as they are (typed and finite by construction): not validated

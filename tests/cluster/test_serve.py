@@ -83,37 +83,53 @@ def test_two_replicas_answer_the_contacts_of_the_embedded_service(ray_cluster, e
 
 
 def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray_cluster, embedded):
-    """A request of 3,000 pairs runs as two tasks on two of the three nodes and answers
-    what the embedded service answers; the same meshes' next requests go back to the same
-    two nodes (their trees on disk, their banks in memory), where SPREAD alone would wander
-    (each repeat lands on the same pair of nodes by chance one time in three)."""
-    from ray.util.state import list_tasks
+    """A request of 3,000 pairs runs as two runs: one in the replica that took it, one as a
+    Ray task on another node — the one that ranks first for the mesh among the others, so
+    each of a replica's requests goes back to the same node (its tree on disk, its banks in
+    memory; a random node would be the same one time in two) — and answers what the
+    embedded service answers."""
+    import ray
+    from ray.util.state import list_actors, list_tasks
 
-    _, url, settings = ray_cluster
+    from service.cluster.batches import ranked
+
+    cluster, url, settings = ray_cluster
     n = 3 * settings.split_pairs
     seen: set[str] = set()
-    nodes_of_each = []
-    with Client(url) as cluster, Client(embedded.url, transport=embedded.transport) as alone:
-        ids = [_upload(c, shapes.box()) for c in (cluster, alone)]
+    remote: dict[str, list[str]] = {}  # replica → the nodes of its requests' tasks
+    with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
+        ids = [_upload(c, shapes.box()) for c in (client, alone)]
         query = _query(ids[:1], n, seed=11)
         expected = alone.find_contacts(**query)
-        for _ in range(4):
-            _same(cluster.find_contacts(**query), expected)
+        replicas = {  # replica id → its node
+            a.name.rsplit("#", 1)[-1]: a.node_id
+            for a in list_actors(filters=[("state", "=", "ALIVE")], limit=1000)
+            if a.class_name.startswith("ServeReplica:")
+        }
+        for _ in range(8):
+            response = httpx.post(f"{url}/v1/contacts", json=_jsonable(query), timeout=120)
+            assert response.status_code == 200, response.text
+            answer = response.json()
+            for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
+                np.testing.assert_array_equal(answer[name], getattr(expected, name), name)
             deadline = time.monotonic() + 20
             while True:  # the state API hears of finished tasks a moment later
                 tasks = list_tasks(
-                    address=f"http://{ray_cluster[0].webui_url}",
+                    address=f"http://{cluster.webui_url}",
                     filters=[("func_or_class_name", "=", "_search_chunk")],
                     detail=True,
                 )
                 new = [t for t in tasks if t.task_id not in seen and t.state == "FINISHED"]
-                if len(new) >= 2 or time.monotonic() > deadline:
+                if new or time.monotonic() > deadline:
                     break
                 time.sleep(0.2)
-            seen |= {t.task_id for t in new}
-            nodes_of_each.append({t.node_id for t in new})
-    assert all(len(nodes) == 2 for nodes in nodes_of_each), nodes_of_each  # two runs, two nodes
-    assert all(nodes == nodes_of_each[0] for nodes in nodes_of_each[1:]), nodes_of_each
+            assert len(new) == 1, new  # one run here, one task
+            seen.add(new[0].task_id)
+            remote.setdefault(response.headers["X-Mrdem-Replica"], []).append(new[0].node_id)
+    cpus = {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0)}
+    for replica, nodes in remote.items():
+        others = cpus - {replicas[replica]}
+        assert nodes == [ranked(ids[:1], others)[0]] * len(nodes), (replica, nodes)
 
 
 @pytest.mark.parametrize("scheme", ["explicit", "implicit-midpoint"])

@@ -42,18 +42,35 @@ def _columns(n: int, seed: int):
 
 
 @settings(max_examples=12, deadline=None)
-@given(n=st.integers(1, 40), chunks=st.integers(1, 6), seed=st.integers(0, 2**31))
+@given(
+    n=st.integers(1, 40),
+    weights=st.lists(st.integers(1, 8), min_size=1, max_size=6),
+    seed=st.integers(0, 2**31),
+)
 @pytest.mark.parametrize("hierarchy", [True, False])
-def test_chunks_merged_in_order_answer_what_the_whole_batch_answers(
-    store, hierarchy, n, chunks, seed
+def test_runs_merged_in_order_answer_what_the_whole_batch_answers(
+    store, hierarchy, n, weights, seed
 ):
+    """Runs in proportion to the weights (some empty when pairs are few), each searched
+    apart, the non-empty ones merged in order — with triangle pairs sent as int32, as a
+    cluster's tasks send them — answer the whole batch's arrays."""
     meshes, columns = ["box", "ball"], _columns(n, seed)
     banks = BankCache(store)
     options = ("exact", hierarchy, "float64", 1, store, banks)
     whole = find(meshes, columns, *options)
-    parts = split(columns, min(chunks, n))
-    assert sum(len(p[0]) for p in parts) == n
-    merged = merge([find(meshes, part, *options) for part in parts])
+    runs = split(columns, weights)
+    assert len(runs) == len(weights)
+    for k, column in enumerate(columns):  # consecutive runs, in order
+        np.testing.assert_array_equal(np.concatenate([r[k] for r in runs]), column)
+    lengths = np.array([len(r[0]) for r in runs])
+    assert lengths.sum() == n
+    share = n * np.asarray(weights) / sum(weights)
+    assert np.all(np.abs(np.cumsum(lengths) - np.cumsum(share)) <= 0.5 + 1e-9)
+    parts = [find(meshes, run, *options) for run in runs if len(run[0])]
+    for part in parts[1::2]:
+        part["pairs"] = part["pairs"].astype(np.int32)
+    merged = merge(parts)
     for name in NAMES:
         np.testing.assert_array_equal(merged[name], whole[name], err_msg=name)
+        assert merged[name].dtype == whole[name].dtype, name
     assert merged["stats"] == whole["stats"]
