@@ -12,13 +12,14 @@ store, the app deployed on Ray Serve (``service.cluster.application``).
    … replicas (``--replicas``) of ``--replica-cpus`` CPUs each, and the plain service
    beside them.
 3. **A 10,000-pair batch on 1 and on 2 nodes** (1 CPU each): on one node the replica
-   searches it alone; on two it is split into two Ray tasks, one a node
-   (``MRDEM_SPLIT_PAIRS``); medians of ``--repeats`` requests after a warm one: the whole
-   request, and the search alone (the answer's ``stats.seconds``: split, run and merged,
-   without decoding, encoding and transfer). Beside it, the ceiling: the same batch
-   searched by one plain process, then as two halves by two processes at once (no Ray, no
-   service) — what the machine's cores give two searches (vCPUs that share a core give
-   less than 2×).
+   searches it alone; on two it searches one half while a Ray task on the other node
+   searches the other (``MRDEM_SPLIT_PAIRS``); medians of ``--repeats`` requests after a
+   warm one: the whole request, the search alone (the answer's ``stats.seconds``: split,
+   run and merged, without decoding, encoding and transfer), and the parts the answers'
+   ``Server-Timing`` names (the split's: submit, here, task, wait, merge). Beside it, the
+   ceiling: the same batch searched by one plain process, then as two halves by two
+   processes at once (no Ray, no service) — what the machine's cores give two searches
+   (vCPUs that share a core give less than 2×).
 
 Needs ``mrdem[cluster]`` and the PostgreSQL server binaries. The client threads run on the
 same machine as the cluster: on 2 cores they take CPU from it (say so when quoting).
@@ -42,6 +43,7 @@ import threading
 import time
 from pathlib import Path
 
+import httpx
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -192,17 +194,35 @@ def loaded(url: str, clients: int, seconds: float, processes: int = 1) -> dict:
     }
 
 
+class _Timings(httpx.HTTPTransport):
+    """An HTTP transport that keeps each answer's ``Server-Timing`` (name → ms)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: list[dict[str, float]] = []
+
+    def handle_request(self, request: httpx.Request) -> httpx.Response:
+        response = super().handle_request(request)
+        header = response.headers.get("server-timing", "")
+        entries = (e.strip().split(";dur=") for e in header.split(",") if e.strip())
+        self.seen.append({name: float(ms) for name, ms in entries})
+        return response
+
+
 def big_batch(url: str, pairs: int, repeats: int) -> dict:
-    with Client(url, timeout=600) as client:
+    timings = _Timings()
+    with Client(url, timeout=600, transport=timings) as client:
         mesh = client.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
         query = columns(pairs, seed=5)
         found = client.find_contacts([mesh], **query)  # warm: trees and banks where it runs
         seconds, searches = [], []
+        del timings.seen[:]
         for _ in range(repeats):
             start = time.perf_counter()
             answer = client.find_contacts([mesh], **query)
             seconds.append(time.perf_counter() - start)
             searches.append(answer.stats["seconds"])  # the search (split, run, merged) alone
+    parts = {name: [t.get(name, np.nan) for t in timings.seen] for name in timings.seen[-1]}
     return {
         "pairs": pairs,
         "contacts": int(found.offsets[-1]),
@@ -210,6 +230,8 @@ def big_batch(url: str, pairs: int, repeats: int) -> dict:
         "median_s": float(np.median(seconds)),
         "search_seconds": searches,
         "search_median_s": float(np.median(searches)),
+        "server_timing_ms": parts,  # each request's Server-Timing entries
+        "server_timing_median_ms": {name: float(np.median(v)) for name, v in parts.items()},
     }
 
 
@@ -441,6 +463,12 @@ def summarise_batch(out: dict, pairs: int) -> None:
             f"{pairs:,}-pair batch, {what}: 1 node {one:.3f} s, 2 nodes {two:.3f} s"
             f" ({one / two:.2f}x)"
         )
+    for nodes in (1, 2):
+        parts = ", ".join(
+            f"{name} {ms:.1f}"
+            for name, ms in out["batch"][nodes]["server_timing_median_ms"].items()
+        )
+        print(f"{pairs:,}-pair batch, {nodes} node(s), Server-Timing medians (ms): {parts}")
     top = out["batch_ceiling"]
     print(
         f"{pairs:,}-pair batch, no Ray: 1 process {top['one_process_s']:.3f} s,"

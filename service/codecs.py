@@ -22,7 +22,16 @@ from mrdem_common.codec import JSON, MSGPACK, NDARRAY_EXT, CodecError, packb, pl
 
 from .errors import BadRequest, NotAcceptable, PayloadTooLarge, UnsupportedMediaType
 
-__all__ = ["JSON", "MSGPACK", "NDARRAY_EXT", "BodyLimit", "decode", "encode_msgpack", "respond"]
+__all__ = [
+    "JSON",
+    "MSGPACK",
+    "NDARRAY_EXT",
+    "BodyLimit",
+    "decode",
+    "encode_msgpack",
+    "respond",
+    "server_timing",
+]
 
 
 def _no_constant(name: str):
@@ -78,6 +87,12 @@ def respond(request: Request, payload: Any, status: int = 200, headers=None) -> 
         return Response(encode_msgpack(payload), status, headers, media_type=MSGPACK)
     body = json.dumps(payload, default=plain, allow_nan=False, separators=(",", ":"))
     return Response(body, status, headers, media_type=JSON)
+
+
+def server_timing(seconds: dict[str, float]) -> str:
+    """A ``Server-Timing`` header's value (W3C Server Timing) of ``seconds`` (name →
+    seconds): ``name;dur=milliseconds`` entries, comma-separated, in order."""
+    return ", ".join(f"{name};dur={value * 1e3:.3f}" for name, value in seconds.items())
 
 
 class BodyLimit:

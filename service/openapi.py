@@ -59,6 +59,14 @@ _PHRASES = {
     503: "The service cannot do it now (kernels compiling, a build out of memory); try later",
 }
 _RETRY_AFTER = {"Retry-After": {"description": "seconds to wait", "schema": {"type": "string"}}}
+#: where a contacts request's time went (W3C Server Timing: ``name;dur=milliseconds``)
+SERVER_TIMING = {
+    "Server-Timing": {
+        "description": "milliseconds of the search and the encoding of the answer; of a"
+        " request split across a cluster's nodes also: submit, here, task, wait, merge",
+        "schema": {"type": "string"},
+    }
+}
 
 
 def _ref(model: type[BaseModel] | str) -> dict:
@@ -110,12 +118,14 @@ def documented(
     body: Any = None,
     multipart: dict | None = None,
     body_required: bool = True,
+    headers: dict | None = None,
 ) -> dict:
     """Keyword arguments of a route decorator documenting its answers and its body.
 
     success : {status: (model, a list of models for oneOf, or None for no body; text)}
     problems : the 4xx/5xx statuses it answers with a problem
     body : its body's model (or a list of models for oneOf); multipart : a form's schema
+    headers : the headers of its successful answers ({name: OpenAPI header object})
     """
     responses: dict[int | str, dict] = {}
     for status, (model, text) in success.items():
@@ -129,6 +139,8 @@ def documented(
                 "Location": {"description": "the build job", "schema": {"type": "string"}},
                 **_RETRY_AFTER,
             }
+        if headers:
+            answer["headers"] = {**answer.get("headers", {}), **headers}
         responses[status] = answer
     for status in problems:
         responses[status] = {

@@ -24,8 +24,10 @@ class BatchSplitter(Protocol):
     def find(
         self, meshes, columns, kernel, hierarchy, precision, here: Callable[[tuple], dict]
     ) -> dict:
-        """What :func:`find` answers for the whole request; ``here(run)`` is :func:`find`
-        of a run of the columns in this process (its engine threads, its banks)."""
+        """What :func:`find` answers for the whole request, and optionally ``timing``
+        (name → seconds: parts of the work, for the ``Server-Timing`` header); ``here(run)``
+        is :func:`find` of a run of the columns in this process (its engine threads, its
+        banks)."""
 
 
 _ROWS = ("points", "normals", "overlaps")

@@ -108,7 +108,10 @@ class Settings(BaseSettings):
         2000, ge=1, description="contacts requests of at least this many pairs run as Ray tasks"
     )
     split_chunks: int = Field(
-        8, ge=1, description="tasks a split contacts request runs as, at most"
+        8,
+        ge=1,
+        description="runs a split contacts request is cut into, at most: one in the replica,"
+        " the others as Ray tasks on other nodes (1: no split)",
     )
     task_cpus: float = Field(1.0, gt=0, description="CPUs of each contacts task")
     replica_access_log: bool = Field(

@@ -160,6 +160,15 @@ def as_array(values) -> np.ndarray:
     return np.asarray(values, dtype=float)
 
 
+def server_timing(response: httpx.Response) -> dict[str, float]:
+    """The answer's ``Server-Timing`` header as ``{name: milliseconds}``, in order."""
+    entries = {}
+    for entry in response.headers["server-timing"].split(","):
+        name, duration = entry.strip().split(";dur=")
+        entries[name] = float(duration)
+    return entries
+
+
 def poll_job(client: httpx.Client, location: str, timeout: float = 120.0) -> dict:
     """GET a build job until it is ``done`` or ``failed``; every status seen, in order, is
     in the returned job's ``seen`` list of ``(status, levels, nodes)``."""

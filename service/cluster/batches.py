@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -44,7 +45,8 @@ def _worker_store(settings: Settings) -> tuple[Store, BankCache]:
 
 
 def _search_chunk(settings: Settings, meshes, columns, kernel, hierarchy, precision, threads):
-    """:func:`service.search.find` of a run, in a Ray task."""
+    """:func:`service.search.find` of a run, in a Ray task: ``(answer, its seconds)``."""
+    start = time.perf_counter()
     # arrays from the object store are read-only: Numba would compile read-only variants
     columns = tuple(np.array(c) for c in columns)
     store, banks = _worker_store(settings)
@@ -52,7 +54,7 @@ def _search_chunk(settings: Settings, meshes, columns, kernel, hierarchy, precis
     pairs = found["pairs"]
     if pairs.size == 0 or pairs.max() < 2**31:  # triangle indices: int32 in transit
         found["pairs"] = pairs.astype(np.int32)
-    return found
+    return found, time.perf_counter() - start
 
 
 def ranked(meshes, nodes) -> list[str]:
@@ -90,6 +92,11 @@ class RaySplitter:
     def find(
         self, meshes, columns, kernel, hierarchy, precision, here: Callable[[tuple], dict]
     ) -> dict:
+        """The merged answer, with ``timing`` (seconds): ``submit`` (the nodes chosen, the
+        runs cut and sent), ``here`` (this process's run), ``task`` (the slowest task, in
+        its worker), ``wait`` (from the end of this process's run to every answer here),
+        ``merge``."""
+        start = time.perf_counter()
         n = len(columns[0])
         nodes = ranked(meshes, self.others())[: min(self.most, n) - 1]
         if not nodes:
@@ -104,10 +111,22 @@ class RaySplitter:
             strategy = NodeAffinitySchedulingStrategy(node, soft=True, _spill_on_unavailable=True)
             task = self._task.options(num_cpus=self.cpus, scheduling_strategy=strategy)
             parts.append(task.remote(settings, meshes, run, kernel, hierarchy, precision, threads))
+        submitted = time.perf_counter()
         try:
             found = [here(mine)] if len(mine[0]) else []  # while the tasks run
         except BaseException:
             for part in parts:
                 ray.cancel(part)
             raise
-        return merge([*found, *ray.get(parts)])
+        searched = time.perf_counter()
+        answers = ray.get(parts)
+        arrived = time.perf_counter()
+        merged = merge([*found, *(answer for answer, _ in answers)])
+        merged["timing"] = {
+            "submit": submitted - start,
+            "here": searched - submitted,
+            "task": max((seconds for _, seconds in answers), default=0.0),
+            "wait": arrived - searched,
+            "merge": time.perf_counter() - arrived,
+        }
+        return merged

@@ -24,7 +24,7 @@ from typing import Annotated
 import numpy as np
 from fastapi import APIRouter, Request
 
-from ..codecs import respond
+from ..codecs import respond, server_timing
 from ..deps import Banks, Config, Engine, Meter, Owner, Splitter, Storage, body
 from ..errors import Unprocessable
 from ..models import (
@@ -36,7 +36,7 @@ from ..models import (
     PerPairContacts,
     PerPairQuery,
 )
-from ..openapi import documented
+from ..openapi import SERVER_TIMING, documented
 from ..search import find
 from .meshes import known
 
@@ -50,6 +50,7 @@ router = APIRouter(prefix="/v1", tags=["contacts"])
         {200: ([ColumnarContacts, PerPairContacts], "The contacts, in the request's layout")},
         (400, 401, 404, 406, 413, 415, 422),
         body=[ColumnarQuery, PerPairQuery],
+        headers=SERVER_TIMING,
     ),
 )
 async def contacts(
@@ -85,6 +86,7 @@ async def contacts(
         else:
             found = here(columns)
         found["stats"]["seconds"] = time.perf_counter() - start
+        timing = {"search": found["stats"]["seconds"], **found.pop("timing", {})}
         stats = ContactStatsOut(**found.pop("stats"))
         # the engine's arrays as they are (typed and finite by construction): not validated
         if columnar:
@@ -92,7 +94,11 @@ async def contacts(
         else:
             results = [PairContacts.model_construct(**r) for r in _split(found)]
             answer = PerPairContacts.model_construct(results=results, stats=stats)
-        return stats, respond(request, answer)
+        encoding = time.perf_counter()
+        response = respond(request, answer)
+        timing["encode"] = time.perf_counter() - encoding
+        response.headers["Server-Timing"] = server_timing(timing)
+        return stats, response
 
     stats, response = await engine.run("contacts", search)
     _count(metrics, stats)

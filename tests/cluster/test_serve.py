@@ -14,7 +14,7 @@ import time
 import httpx
 import numpy as np
 import pytest
-from harness import InProcessService, run_readme_loop
+from harness import InProcessService, run_readme_loop, server_timing
 from servers import descendants
 
 from clients import Client
@@ -87,7 +87,7 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
     Ray task on another node — the one that ranks first for the mesh among the others, so
     each of a replica's requests goes back to the same node (its tree on disk, its banks in
     memory; a random node would be the same one time in two) — and answers what the
-    embedded service answers."""
+    embedded service answers; its ``Server-Timing`` names the split's parts."""
     import ray
     from ray.util.state import list_actors, list_tasks
 
@@ -112,6 +112,9 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
             answer = response.json()
             for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
                 np.testing.assert_array_equal(answer[name], getattr(expected, name), name)
+            timing = server_timing(response)  # where the time went, the split's parts too
+            assert list(timing) == ["search", "submit", "here", "task", "wait", "merge", "encode"]
+            assert timing["search"] >= timing["here"] + timing["wait"] and timing["task"] > 0
             deadline = time.monotonic() + 20
             while True:  # the state API hears of finished tasks a moment later
                 tasks = list_tasks(

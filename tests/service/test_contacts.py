@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from harness import as_array, msgpack_body, post_msgpack
+from harness import as_array, msgpack_body, post_msgpack, server_timing
 
 from engine import Pose, build_tree, find_contacts_batch, shapes
 
@@ -108,3 +108,29 @@ def test_metrics_count_requests_and_comparisons(http, spheres):
     assert 'mrdem_http_requests_total{method="POST",route="/v1/contacts",status="200"}' in text
     comparisons = [line for line in text.splitlines() if line.startswith("mrdem_triangle_comp")]
     assert comparisons and float(comparisons[0].split()[-1]) > 0
+
+
+@pytest.mark.parametrize("layout", ["pairs", "columnar"])
+def test_the_answer_says_where_its_time_went(http, spheres, layout):
+    """``Server-Timing``: the search (the ``stats.seconds`` of the body) and the encoding of
+    the answer, in milliseconds."""
+    ids, _ = spheres
+    if layout == "pairs":
+        pair = {"a": ids["small"], "b": ids["large"], "pose_b": {"position": [1.5, 0, 0]}}
+        request = {"pairs": [pair] * 3}
+    else:
+        request = {
+            "meshes": [ids["small"], ids["large"]],
+            "a": [0, 0, 1],
+            "b": [1, 1, 1],
+            "position_a": [[0, 0, 0]] * 3,
+            "orientation_a": [[1, 0, 0, 0]] * 3,
+            "position_b": [[1.5, 0, 0], [0, 1.5, 0], [0, 0, 2.1]],
+            "orientation_b": [[1, 0, 0, 0]] * 3,
+        }
+    response = http.post("/v1/contacts", json=request)
+    assert response.status_code == 200, response.text
+    timing = server_timing(response)
+    assert list(timing) == ["search", "encode"]
+    assert timing["search"] == pytest.approx(response.json()["stats"]["seconds"] * 1e3, abs=1e-3)
+    assert 0 < timing["encode"] < 1e4
