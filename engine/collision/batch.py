@@ -280,7 +280,8 @@ class TreeBank:
         (``pairs`` then raises): a scene step reads only their count. ``read_only``: the
         cache's lists serve where they are valid, and it is left as it was (a search of
         some pairs only: the lists of the others stay)."""
-        queries = kb.PairQueries(*queries)
+        # read-only arrays (a Pose's) copied: Numba would compile the kernel once more
+        queries = kb.PairQueries(*(a if a.flags.writeable else a.copy() for a in queries))
         k = len(queries.tree_a)
         threads = int(threads or CPUS)
         halves = threads > 1 and k < 2 * _PAIRS_PER_TASK

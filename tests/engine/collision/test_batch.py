@@ -107,6 +107,28 @@ def test_threaded_pairs_are_joined_on_first_access(trees):
         np.testing.assert_array_equal(threaded[q].pairs, single[q].pairs)
 
 
+def test_run_takes_read_only_arrays_without_compiling_for_them(trees):
+    """``TreeBank.run`` of a Pose's read-only arrays answers what writable copies answer,
+    with the kernel compiled for writable arrays (Numba compiles a variant for every
+    read-only/writable combination: 23 s of a cold CI run went to one)."""
+    from engine.kernels.collision import batch as kb
+
+    bank = TreeBank(trees)
+    a, pa, qa, b, pb, qb = (np.array(c) for c in bank_arguments(trees, random_queries(trees, 8, 3)))
+    frozen = []
+    for column in (pa, qa, pb, qb):
+        column = column.copy()
+        column.flags.writeable = False
+        frozen.append(column)
+    plain = bank.run((a, b, pa, qa, pb, qb), "hybrid", 1)
+    seen = set(kb.batch_kernel.signatures)
+    read_only = bank.run((a, b, *frozen), "hybrid", 1)
+    assert set(kb.batch_kernel.signatures) == seen
+    assert not any("readonly" in str(s) for s in kb.batch_kernel.signatures)
+    np.testing.assert_array_equal(read_only.points, plain.points)
+    np.testing.assert_array_equal(read_only.pairs, plain.pairs)
+
+
 @pytest.mark.parametrize("threads", [1, 2])
 def test_counted_pairs_give_the_same_counts_and_contacts(trees, threads):
     """``keep_pairs=False`` (a scene step) counts the face pairs without writing them,
