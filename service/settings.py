@@ -86,7 +86,8 @@ class Settings(BaseSettings):
         True,
         description="keep freed blocks below 32 MiB in the allocator's heap for reuse instead of"
         " returning them to the system (glibc; mrdem_common.malloc): no page faults for every"
-        " array a request makes",
+        " array a request makes; on a Ray cluster also one malloc arena per process"
+        " (MALLOC_ARENA_MAX=1 unless set)",
     )
     idempotency_retention: float = Field(
         24 * 3600.0,

@@ -33,15 +33,26 @@ APP_NAME = "mrdem"
 log = logging.getLogger("mrdem.cluster")
 
 #: variables a replica, a scene actor and a task need from the environment that started
-#: the deployment: the kernel cache, and boto3's credentials for the object store
+#: the deployment: the kernel cache, boto3's credentials for the object store, and glibc's
+#: arena count (below)
 PASSED_ON = (
     "NUMBA_CACHE_DIR",
+    "MALLOC_ARENA_MAX",
     "AWS_ACCESS_KEY_ID",
     "AWS_SECRET_ACCESS_KEY",
     "AWS_SESSION_TOKEN",
     "AWS_DEFAULT_REGION",
     "AWS_REGION",
 )
+
+
+#: glibc's ``MALLOC_ARENA_MAX`` in the cluster's processes (with ``MRDEM_KEEP_LARGE_BLOCKS``,
+#: unless the environment sets it). A replica's threads (Ray's and the engine's) otherwise
+#: each get an arena of their own, whose heaps glibc maps and unmaps as a request's arrays
+#: come and go, whatever ``mrdem_common.malloc`` asks: measured, a 10,000-pair request took
+#: ~15,000 page faults in the replica and its answer 20-28 ms to encode; with one arena
+#: ~12 faults and 4-6 ms, as in the plain service (BENCHMARKS.md, issue 18, third session).
+ARENAS = "1"
 
 
 class Ingress:
@@ -88,6 +99,8 @@ class Ingress:
 def application(settings: Settings, replicas: int, cpus: float) -> serve.Application:
     """The Serve application: ``replicas`` replicas of ``cpus`` CPUs each."""
     env = {k: os.environ[k] for k in PASSED_ON if k in os.environ}
+    if settings.keep_large_blocks:  # one malloc arena: see ARENAS
+        env.setdefault("MALLOC_ARENA_MAX", ARENAS)
     deployment = serve.deployment(
         serve.ingress()(Ingress),
         name="mrdem",

@@ -10,13 +10,20 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 pytestmark = pytest.mark.cluster
-ranked = pytest.importorskip("service.cluster.batches").ranked  # with the cluster extra
 
 ids = st.text("0123456789abcdef", min_size=8, max_size=8)
 
 
+@pytest.fixture(scope="module")
+def ranked():
+    """:func:`service.cluster.batches.ranked` (Ray imported once, outside the examples)."""
+    from service.cluster.batches import ranked
+
+    return ranked
+
+
 @given(meshes=st.lists(ids, min_size=1, max_size=3), nodes=st.sets(ids, min_size=2, max_size=8))
-def test_a_node_leaving_moves_only_its_own_place(meshes, nodes):
+def test_a_node_leaving_moves_only_its_own_place(ranked, meshes, nodes):
     """Every process ranks the same way whatever order it lists the nodes in; without one
     node the others keep their order, so only that node's runs go elsewhere."""
     order = ranked(meshes, nodes)
@@ -26,7 +33,7 @@ def test_a_node_leaving_moves_only_its_own_place(meshes, nodes):
     assert ranked(meshes, nodes - {gone}) == [n for n in order if n != gone]
 
 
-def test_different_meshes_spread_over_the_nodes():
+def test_different_meshes_spread_over_the_nodes(ranked):
     """Over 4,000 mesh ids, each of 4 nodes ranks first for about a quarter of them."""
     nodes = [f"node-{k}" for k in range(4)]
     first = collections.Counter(ranked([f"mesh-{m}"], nodes)[0] for m in range(4000))

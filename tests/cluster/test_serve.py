@@ -77,9 +77,18 @@ def test_two_replicas_answer_the_contacts_of_the_embedded_service(ray_cluster, e
         assert len(set(replicas)) == 2, replicas  # both replicas answered, the same
     from ray.util.state import list_actors
 
-    replica_actors = list_actors(filters=[("state", "=", "ALIVE")], limit=1000)
-    nodes = {a.node_id for a in replica_actors if a.class_name.startswith("ServeReplica:")}
-    assert len(nodes) == 2  # on two nodes, behind HAProxy (both listening on their port 30000)
+    actors = list_actors(filters=[("state", "=", "ALIVE")], limit=1000, detail=True)
+    replica_actors = [a for a in actors if a.class_name.startswith("ServeReplica:")]
+    assert len({a.node_id for a in replica_actors}) == 2  # on two nodes, behind HAProxy
+    for actor in replica_actors:  # one malloc arena (service.cluster.deployment.ARENAS)
+        assert _environ(actor.pid).get("MALLOC_ARENA_MAX") == "1"
+
+
+def _environ(pid: int) -> dict[str, str]:
+    """A process's environment, as it started."""
+    with open(f"/proc/{pid}/environ", "rb") as f:
+        pairs = (v.decode().partition("=") for v in f.read().split(b"\0") if v)
+    return {name: value for name, _, value in pairs}
 
 
 def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray_cluster, embedded):
@@ -97,6 +106,7 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
     n = 3 * settings.split_pairs
     seen: set[str] = set()
     remote: dict[str, list[str]] = {}  # replica → the nodes of its requests' tasks
+    workers: set[int] = set()  # the processes that ran the tasks
     with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
         ids = [_upload(c, shapes.box()) for c in (client, alone)]
         query = _query(ids[:1], n, seed=11)
@@ -127,8 +137,11 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
                     break
                 time.sleep(0.2)
             assert len(new) == 1, new  # one run here, one task
+            workers.add(new[0].worker_pid)
             seen.add(new[0].task_id)
             remote.setdefault(response.headers["X-Mrdem-Replica"], []).append(new[0].node_id)
+    alive = [pid for pid in workers if os.path.exists(f"/proc/{pid}")]  # pooled: most stay
+    assert alive and all(_environ(pid).get("MALLOC_ARENA_MAX") == "1" for pid in alive)
     cpus = {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0)}
     for replica, nodes in remote.items():
         others = cpus - {replicas[replica]}
