@@ -156,6 +156,7 @@ def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embe
     Picard tolerance allows (the warm starts of the lost actor are not stored), as after a
     restart of the embedded service."""
     import ray
+    from ray.util.state import list_actors
 
     from service.cluster import NAMESPACE, actor_name
 
@@ -188,6 +189,11 @@ def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embe
             if name == "cluster":  # a new actor, on the node left, took the scene over
                 actor = ray.get_actor(actor_name("", scene.id), namespace=NAMESPACE)
                 assert ray.get(actor.node.remote()) != node_id
+                (info,) = list_actors(
+                    filters=[("name", "=", actor_name("", scene.id)), ("state", "=", "ALIVE")],
+                    detail=True,
+                )
+                assert _environ(info.pid).get("MALLOC_ARENA_MAX") == "1"  # as its replica
             states[name] = state
     assert acknowledged == list(range(5, 105, 5))
     for part in ("positions", "orientations", "velocities", "angular_velocities"):
