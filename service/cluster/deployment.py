@@ -51,7 +51,7 @@ PASSED_ON = (
 #: each get an arena of their own, whose heaps glibc maps and unmaps as a request's arrays
 #: come and go, whatever ``mrdem_common.malloc`` asks: measured, a 10,000-pair request took
 #: ~15,000 page faults in the replica and its answer 20-28 ms to encode; with one arena
-#: ~12 faults and 4-6 ms, as in the plain service (BENCHMARKS.md, issue 18, third session).
+#: ~12 faults and 4-6 ms (the plain service: 5-8 ms; BENCHMARKS.md, issue 18, third session).
 ARENAS = "1"
 
 
