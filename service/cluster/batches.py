@@ -76,17 +76,19 @@ class RaySplitter:
     def __init__(self, settings: Settings, threshold: int, chunks: int, cpus: float) -> None:
         self.settings, self.threshold, self.most, self.cpus = settings, threshold, chunks, cpus
         self._task = ray.remote(_search_chunk)
+        self._threads = max(1, int(round(cpus)))  # a task's engine threads, and its settings
+        self._task_settings = settings.model_copy(update={"engine_threads": self._threads})
+        self._node = ray.get_runtime_context().get_node_id()  # this process's
 
     def applies(self, pairs: int) -> bool:
         return pairs >= self.threshold and self.most > 1
 
     def others(self) -> list[str]:
         """The alive nodes with CPUs, this process's node excepted."""
-        here = ray.get_runtime_context().get_node_id()
         return [
             n["NodeID"]
             for n in ray.nodes()
-            if n["Alive"] and n["Resources"].get("CPU", 0) > 0 and n["NodeID"] != here
+            if n["Alive"] and n["Resources"].get("CPU", 0) > 0 and n["NodeID"] != self._node
         ]
 
     def find(
@@ -101,8 +103,7 @@ class RaySplitter:
         nodes = ranked(meshes, self.others())[: min(self.most, n) - 1]
         if not nodes:
             return here(columns)
-        threads = max(1, int(round(self.cpus)))
-        settings = self.settings.model_copy(update={"engine_threads": threads})
+        threads, settings = self._threads, self._task_settings
         mine, *runs = split(columns, [self.settings.engine_threads] + [threads] * len(nodes))
         parts = []
         for node, run in zip(nodes, runs, strict=True):
