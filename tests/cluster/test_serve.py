@@ -7,9 +7,12 @@ acknowledged step lost, as an uninterrupted run."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import signal
+import threading
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -146,6 +149,132 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
     for replica, nodes in remote.items():
         others = cpus - {replicas[replica]}
         assert nodes == [ranked(ids[:1], others)[0]] * len(nodes), (replica, nodes)
+
+
+def test_a_big_batch_whose_task_node_dies_is_answered_in_full(ray_cluster, embedded):
+    """The node running a split request's task is killed while the task runs: the
+    replica searches the task's run itself (Ray does not run the task again: its one
+    attempt failed, none other ran) and the request answers what the embedded service
+    answers, whole."""
+    from ray.util.state import list_tasks
+
+    cluster, url, settings = ray_cluster
+    n = 10 * settings.split_pairs  # near contact: the task runs for a while
+    with (
+        Client(url, timeout=120) as client,
+        Client(embedded.url, transport=embedded.transport) as alone,
+    ):
+        ids = [_upload(c, shapes.icosphere(3)) for c in (client, alone)]
+        query = _near(ids[:1], n, seed=12)
+        expected = alone.find_contacts(**query)
+        answers: dict = {}
+        request = threading.Thread(
+            target=lambda: answers.update(found=client.find_contacts(**query))
+        )
+        request.start()
+        pid = _running("ray::_search_chunk", deadline=time.monotonic() + 60)
+        (node,) = [
+            w
+            for w in cluster.worker_nodes
+            if pid in descendants(w.all_processes["raylet"][0].process.pid)
+        ]
+        _kill_node(cluster, node)
+        request.join(timeout=180)
+    assert not request.is_alive() and "found" in answers, "the request never answered"
+    _same(answers["found"], expected)
+    address = f"http://{cluster.webui_url}"
+    deadline = time.monotonic() + 20
+    while True:  # the state API hears of ended tasks a moment later
+        tasks = list_tasks(
+            address=address,
+            filters=[("func_or_class_name", "=", "_search_chunk")],
+            detail=True,
+            limit=10_000,
+        )
+        failed = [t for t in tasks if t.node_id == node.node_id and t.state == "FAILED"]
+        if failed or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    assert len(failed) == 1, "no task failed with its node"
+    time.sleep(1.0)  # … and of a second attempt, were there one
+    attempts = list_tasks(address=address, filters=[("task_id", "=", failed[0].task_id)])
+    assert [t.state for t in attempts] == ["FAILED"], attempts
+    # a node in its place, at its address, for what runs after
+    cluster.add_node(num_cpus=2, object_store_memory=10**8, node_ip_address=node.node_ip_address)
+
+
+def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, embedded, caplog):
+    """A node that cannot search (here: its data directory cannot be made, so the task's
+    store does not open) fails its task with an error (Ray runs a task again only when its
+    worker or node was lost): the splitter searches that run where the request is, the
+    answer is still the embedded service's, whole, and the log names the node."""
+    from service.banks import BankCache
+    from service.cluster.batches import RaySplitter, ranked
+    from service.models import ColumnarQuery
+    from service.search import find, split
+    from service.store import open_store
+
+    _, url, settings = ray_cluster
+    with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
+        ids = [_upload(c, shapes.box()) for c in (client, alone)]
+        query = _query(ids[:1], 2 * settings.split_pairs, seed=13)
+        expected = alone.find_contacts(**query)
+    store = open_store(settings)  # this process's, as a replica's
+    banks = BankCache(store)
+    unwritable = settings.model_copy(update={"data_dir": Path("/proc/version/mrdem")})
+    splitter = RaySplitter(unwritable, 1, 2, 0.5)  # its tasks get the broken settings
+    valid = ColumnarQuery.model_validate(query)  # as the service reads it (unit quaternions)
+    columns = tuple(getattr(valid, k) for k in ("a", "position_a", "orientation_a", "b"))
+    columns += (valid.position_b, valid.orientation_b)
+
+    def here(run: tuple) -> dict:
+        return find(ids[:1], run, "hybrid", True, "float64", 1, store, banks)
+
+    node = ranked(ids[:1], splitter.others())[0]  # where its task goes
+    try:
+        with caplog.at_level(logging.WARNING, logger="mrdem.cluster"):
+            found = splitter.find(ids[:1], columns, "hybrid", True, "float64", here=here)
+    finally:
+        store.close()
+    for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
+        np.testing.assert_array_equal(found[name], getattr(expected, name), name)
+    (warning,) = [r for r in caplog.records if r.name == "mrdem.cluster"]
+    sent = len(split(columns, [settings.engine_threads, 1])[1][0])  # the task's run
+    assert f"a contacts task of {sent} pairs" in warning.getMessage()
+    assert f"sent to node {node} failed; searched here" in warning.getMessage()
+
+
+def _near(mesh_ids, n: int, seed: int) -> dict:
+    """``n`` pairs of the first mesh (a unit icosphere) with centres 2.0–2.06 apart: each
+    pair near contact."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d *= rng.uniform(2.0, 2.06, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return {
+        "meshes": mesh_ids,
+        "a": np.zeros(n, np.int64),
+        "b": np.zeros(n, np.int64),
+        "position_a": np.zeros((n, 3)),
+        "orientation_a": np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+        "position_b": d,
+        "orientation_b": q,
+    }
+
+
+def _running(title: str, deadline: float) -> int:
+    """The pid of a process whose title (Ray's: ``ray::<function>`` while it runs one)
+    starts with ``title``, as soon as there is one."""
+    wanted = title.encode()
+    while time.monotonic() < deadline:
+        for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+            try:
+                if cmdline.read_bytes().startswith(wanted):
+                    return int(cmdline.parent.name)
+            except OSError:  # gone meanwhile
+                continue
+    raise AssertionError(f"no process {title!r} ran")
 
 
 @pytest.mark.parametrize("scheme", ["explicit", "implicit-midpoint"])
