@@ -4,14 +4,15 @@ the merge of batches searched apart (the chunks of a big request run on a cluste
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import Protocol
 
 import numpy as np
 
 from engine import Pose, find_contacts_batch
 
-__all__ = ["BatchSplitter", "find", "merge", "split"]
+__all__ = ["BatchSplitter", "RunSpeeds", "find", "merge", "split"]
 
 
 class BatchSplitter(Protocol):
@@ -54,6 +55,51 @@ def split(columns, weights: Sequence[float]) -> list[tuple]:
     cuts = np.concatenate([[0.0], np.cumsum(shares) / shares.sum() * n]).round().astype(np.int64)
     cuts[-1] = n
     return [tuple(c[cuts[k] : cuts[k + 1]] for c in columns) for k in range(len(shares))]
+
+
+class RunSpeeds:
+    """How fast each place (a cluster's node) searches a run of this process's split
+    requests, relative to this process: its pairs per second counted from the moment the
+    runs were sent to the moment its answer is here (the hand-off counts), over this
+    process's own pairs per second in the same request; exponentially weighted
+    (``smoothing``), each sample clamped to ``[prior / bound, prior * bound]`` (a cold
+    worker's first run weighs little, and no place is ever left without pairs, so each is
+    measured again). Runs cut in proportion to these speeds end together: a share equal to
+    its place's measured speed is the fixed point. Thread-safe."""
+
+    def __init__(self, smoothing: float = 0.3, bound: float = 4.0) -> None:
+        self.smoothing, self.bound = smoothing, bound
+        self._speeds: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def weights(self, places: Sequence[str], prior: float) -> list[float]:
+        """The speed of each of ``places`` (> 0): ``prior`` (its engine threads over this
+        process's, say) where none was measured yet."""
+        with self._lock:
+            return [self._speeds.get(place, prior) for place in places]
+
+    def update(
+        self, here: tuple[int, float], runs: Mapping[str, tuple[int, float]], prior: float
+    ) -> None:
+        """One split request: ``here`` this process's run ``(pairs, seconds)``, ``runs``
+        each place's ``(pairs, seconds from sent to answer here)``. Runs without pairs or
+        time teach nothing."""
+        pairs, seconds = here
+        if pairs <= 0 or seconds <= 0:
+            return
+        with self._lock:
+            for place, (n, elapsed) in runs.items():
+                if n <= 0 or elapsed <= 0:
+                    continue
+                speed = (n * seconds) / (elapsed * pairs)  # its pairs/s over this process's
+                sample = min(max(speed, prior / self.bound), prior * self.bound)
+                old = self._speeds.get(place, prior)
+                self._speeds[place] = old + self.smoothing * (sample - old)
+
+    def keep(self, places: Collection[str]) -> None:
+        """Forget every place but ``places`` (those alive)."""
+        with self._lock:
+            self._speeds = {p: v for p, v in self._speeds.items() if p in places}
 
 
 def merge(parts: list[dict]) -> dict:

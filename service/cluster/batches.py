@@ -3,7 +3,10 @@ pairs is cut into runs of consecutive pairs (:func:`service.search.split`), at m
 ``MRDEM_SPLIT_CHUNKS``: the replica searches the first itself, with its engine threads and
 its banks, while each other run goes to another alive node with CPUs as a Ray task; the
 answers are merged in order (:func:`service.search.merge`): the same arrays as one process's
-search. A run's length is in proportion to the engine threads that search it.
+search. A run's length is in proportion to how fast its node has searched this replica's
+runs, relative to the replica, from the moment the runs are sent to the moment the answer is
+in hand (:class:`service.search.RunSpeeds`: the hand-off counts; at first, the engine
+threads that search it), so that the runs end together.
 
 The nodes for a request's meshes are ranked by rendezvous hashing: every replica sends the
 same meshes to the same nodes while they are alive (their trees on disk there, their banks
@@ -34,7 +37,7 @@ from ray.exceptions import RayError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from ..banks import BankCache
-from ..search import find, merge, split
+from ..search import RunSpeeds, find, merge, split
 from ..settings import Settings
 from ..store import Store, open_store
 
@@ -69,21 +72,29 @@ def _search_chunk(settings: Settings, meshes, columns, kernel, hierarchy, precis
 
 
 class _Fetch:
-    """The tasks' answers pulled here, one after another, by a thread of its own from now
+    """The tasks' answers pulled here as each is ready, by a thread of its own from now
     on: a task's answer crosses from its node's object store while this process still
-    searches its own run (``ray.get`` pulls an object only when called)."""
+    searches its own run (``ray.get`` pulls an object only when called); ``arrived[k]``
+    is when part k's answer was here (``time.perf_counter``)."""
 
     def __init__(self, parts: list) -> None:
         self._answers: list = [None] * len(parts)
+        self.arrived = [0.0] * len(parts)
         self._thread = threading.Thread(target=self._get, args=(parts,), daemon=True)
         self._thread.start()
 
     def _get(self, parts: list) -> None:
-        for k, part in enumerate(parts):
-            try:
-                self._answers[k] = ray.get(part)
-            except Exception as error:  # handed to the request's thread by result()
-                self._answers[k] = error
+        index = {part: k for k, part in enumerate(parts)}
+        pending = list(parts)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)  # here: fetch_local
+            for part in ready:
+                k = index[part]
+                try:
+                    self._answers[k] = ray.get(part)
+                except Exception as error:  # handed to the request's thread by result()
+                    self._answers[k] = error
+                self.arrived[k] = time.perf_counter()
 
     def result(self) -> list:
         """Each task's answer, in order, or the :class:`ray.exceptions.RayError` it ended
@@ -118,6 +129,8 @@ class RaySplitter:
         self._threads = max(1, int(round(cpus)))  # a task's engine threads, and its settings
         self._task_settings = settings.model_copy(update={"engine_threads": self._threads})
         self._node = ray.get_runtime_context().get_node_id()  # this process's
+        self._prior = self._threads / settings.engine_threads  # a node's speed, unmeasured
+        self.speeds = RunSpeeds()  # each node's, measured on this replica's requests
 
     def applies(self, pairs: int) -> bool:
         return pairs >= self.threshold and self.most > 1
@@ -140,11 +153,13 @@ class RaySplitter:
         here after the others, with a warning in the log."""
         start = time.perf_counter()
         n = len(columns[0])
-        nodes = ranked(meshes, self.others())[: min(self.most, n) - 1]
+        alive = self.others()
+        self.speeds.keep(alive)
+        nodes = ranked(meshes, alive)[: min(self.most, n) - 1]
         if not nodes:
             return here(columns)
         threads, settings = self._threads, self._task_settings
-        mine, *runs = split(columns, [self.settings.engine_threads] + [threads] * len(nodes))
+        mine, *runs = split(columns, [1.0, *self.speeds.weights(nodes, self._prior)])
         sent, parts = [], []
         for node, run in zip(nodes, runs, strict=True):
             if len(run[0]) == 0:  # more weight elsewhere than pairs to go round
@@ -164,8 +179,9 @@ class RaySplitter:
                 ray.cancel(part)
             raise
         searched = time.perf_counter()
-        seconds = []
-        for (node, run), answer in zip(sent, fetch.result(), strict=True):
+        answers = fetch.result()
+        seconds, measured = [], {}
+        for (node, run), answer, at in zip(sent, answers, fetch.arrived, strict=True):
             if isinstance(answer, RayError):
                 log.warning(
                     "a contacts task of %d pairs sent to node %s failed; searched here: %s",
@@ -174,9 +190,12 @@ class RaySplitter:
                     answer,
                 )
                 answer = here(run), 0.0
+            else:
+                measured[node] = (len(run[0]), at - submitted)
             found.append(answer[0])
             seconds.append(answer[1])
         arrived = time.perf_counter()
+        self.speeds.update((len(mine[0]), searched - submitted), measured, self._prior)
         merged = merge(found)
         merged["timing"] = {
             "submit": submitted - start,
