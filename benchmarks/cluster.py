@@ -19,7 +19,11 @@ store, the app deployed on Ray Serve (``service.cluster.application``).
    ``Server-Timing`` names (the split's: submit, here, task, wait, merge). Beside it, the
    ceiling: the same batch searched by one plain process, then as two halves by two
    processes at once (no Ray, no service) — what the machine's cores give two searches
-   (vCPUs that share a core give less than 2×).
+   (vCPUs that share a core give less than 2×). Then **paired**, on one 2-node cluster:
+   two apps side by side, a replica that searches alone (``MRDEM_SPLIT_CHUNKS=1``) and one
+   that splits, sent the batch in turn, request by request: each round's ratio compares
+   the two under the same conditions (on a VM whose speed drifts, the separate clusters'
+   figures moved 1.46–1.90× between two runs of the same code).
 
 Needs ``mrdem[cluster]`` and the PostgreSQL server binaries. The client threads run on the
 same machine as the cluster: on 2 cores they take CPU from it (say so when quoting).
@@ -235,6 +239,55 @@ def big_batch(url: str, pairs: int, repeats: int) -> dict:
     }
 
 
+def paired_batch(urls: dict, pairs: int, repeats: int) -> dict:
+    """The big batch sent to each of ``urls`` (name → app) in turn, one request each per
+    round, ``repeats`` rounds after a warm request each: the apps see the machine alike
+    (its drifting speed, its neighbours), so each round's ratio compares like with like.
+    Per app: each request's seconds and search seconds, the medians; the median of the
+    rounds' ratios of the first app's to the second's."""
+    timings = {name: _Timings() for name in urls}
+    clients = {
+        name: Client(url, timeout=600, transport=timings[name]) for name, url in urls.items()
+    }
+    query = columns(pairs, seed=5)
+    seconds: dict = {name: [] for name in urls}
+    searches: dict = {name: [] for name in urls}
+    try:
+        meshes = {
+            name: c.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+            for name, c in clients.items()
+        }
+        for name, client in clients.items():  # warm: trees and banks where they run
+            client.find_contacts([meshes[name]], **query)
+            del timings[name].seen[:]
+        for _ in range(repeats):
+            for name, client in clients.items():
+                start = time.perf_counter()
+                answer = client.find_contacts([meshes[name]], **query)
+                seconds[name].append(time.perf_counter() - start)
+                searches[name].append(answer.stats["seconds"])
+    finally:
+        for client in clients.values():
+            client.close()
+    first, second = list(urls)
+    out: dict = {}
+    for name in urls:
+        seen = timings[name].seen
+        parts = {k: [t.get(k, np.nan) for t in seen] for k in seen[-1]}
+        out[name] = {
+            "seconds": seconds[name],
+            "median_s": float(np.median(seconds[name])),
+            "search_seconds": searches[name],
+            "search_median_s": float(np.median(searches[name])),
+            "server_timing_median_ms": {k: float(np.median(v)) for k, v in parts.items()},
+        }
+    for key, what in (("seconds", "request"), ("search_seconds", "search")):
+        ratios = np.array(out[first][key]) / np.array(out[second][key])
+        out[f"{what}_ratio_median"] = float(np.median(ratios))
+        out[f"{what}_ratio_quartiles"] = [float(np.percentile(ratios, q)) for q in (25, 75)]
+    return out
+
+
 def _search_halves(part: int, parts: int, pairs: int, repeats: int, barrier, results) -> None:
     """In a process of its own: run ``part`` of ``parts`` of the big batch's pairs,
     ``repeats`` times, each after ``barrier`` (every part starts together)."""
@@ -301,15 +354,18 @@ class RayCluster:
         )
         self.url = f"http://127.0.0.1:{self.port}"
 
-    def deploy(self, replicas: int, replica_cpus: float, **settings) -> str:
+    def deploy(self, replicas: int, replica_cpus: float, name: str = "", **settings) -> str:
+        """The URL of the app deployed with ``settings``; a ``name`` deploys it beside the
+        others, at ``/<name>``."""
         from service.cluster import APP_NAME, application
         from service.settings import Settings
 
         values = Settings(**self.store, replica_cpus=replica_cpus, **settings)
         start = time.perf_counter()
-        self.serve.run(application(values, replicas, replica_cpus), name=APP_NAME, route_prefix="/")
+        app = application(values, replicas, replica_cpus)
+        self.serve.run(app, name=name or APP_NAME, route_prefix=f"/{name}")
         print(f"  {replicas} replica(s) deployed in {time.perf_counter() - start:.1f} s")
-        return self.url
+        return f"{self.url}/{name}" if name else self.url
 
     def close(self) -> None:  # no serve.shutdown(): it can wait 30 s for the controller
         self.ray.shutdown()
@@ -418,6 +474,25 @@ def main() -> None:
                 print(f"{args.pairs:,}-pair batch, {nodes} node(s): {out['batch'][nodes]}")
             finally:
                 cluster.close()
+        if args.only != "serve":  # both on one 2-node cluster, request by request
+            store = {**store, "store_url": postgres.database(), "object_store_url": s3.bucket()}
+            cluster = RayCluster(2, 1, store)
+            try:
+                urls = {
+                    name: cluster.deploy(
+                        1,
+                        0.1,
+                        name=f"batch-{name}",
+                        task_cpus=0.8,  # fits a node beside both replicas
+                        split_pairs=min(args.pairs, 2000),
+                        split_chunks=chunks,
+                    )
+                    for name, chunks in (("alone", 1), ("split", 2))
+                }
+                out["batch_paired"] = paired_batch(urls, args.pairs, args.repeats)
+                print(f"{args.pairs:,}-pair batch, paired: {out['batch_paired']}")
+            finally:
+                cluster.close()
     finally:
         postgres.stop()
         s3.stop()
@@ -469,6 +544,20 @@ def summarise_batch(out: dict, pairs: int) -> None:
             for name, ms in out["batch"][nodes]["server_timing_median_ms"].items()
         )
         print(f"{pairs:,}-pair batch, {nodes} node(s), Server-Timing medians (ms): {parts}")
+    if "batch_paired" in out:
+        paired = out["batch_paired"]
+        for key, what in (("median_s", "request"), ("search_median_s", "search")):
+            alone, split = paired["alone"][key], paired["split"][key]
+            low, high = paired[f"{what}_ratio_quartiles"]
+            print(
+                f"{pairs:,}-pair batch, paired on 2 nodes, {what}: alone {alone:.3f} s, split"
+                f" {split:.3f} s; per round {paired[f'{what}_ratio_median']:.2f}x"
+                f" (quartiles {low:.2f}-{high:.2f})"
+            )
+        parts = ", ".join(
+            f"{name} {ms:.1f}" for name, ms in paired["split"]["server_timing_median_ms"].items()
+        )
+        print(f"{pairs:,}-pair batch, paired, split, Server-Timing medians (ms): {parts}")
     top = out["batch_ceiling"]
     print(
         f"{pairs:,}-pair batch, no Ray: 1 process {top['one_process_s']:.3f} s,"
