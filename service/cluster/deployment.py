@@ -27,7 +27,7 @@ from ..settings import Settings
 from .batches import RaySplitter
 from .scenes import NAMESPACE, ActorScenes
 
-__all__ = ["APP_NAME", "Ingress", "application", "run"]
+__all__ = ["APP_NAME", "Ingress", "application", "niceness_warning", "run"]
 
 APP_NAME = "mrdem"
 log = logging.getLogger("mrdem.cluster")
@@ -55,6 +55,27 @@ PASSED_ON = (
 ARENAS = "1"
 
 
+#: Ray starts its worker processes (replicas, tasks, actors) at nice 15 unless the nodes
+#: were started with ``RAY_worker_niceness=0``: any process at the default priority on a
+#: node then takes its CPU first. Measured (BENCHMARKS.md, issue 18, fourth session): a
+#: task's search slowed 27x by one process spinning on its node's CPU, where a plain
+#: process is slowed 2.1x (its fair share).
+NICENESS = "RAY_worker_niceness=0"
+
+
+def niceness_warning() -> str | None:
+    """What to tell the operator when this process runs below the default priority
+    (None when it does not)."""
+    nice = os.nice(0)
+    if nice <= 0:
+        return None
+    return (
+        f"this process runs at nice {nice}: any other work on its node takes the CPU"
+        f" first (searches measured 27x slower beside one busy process); start the Ray"
+        f" nodes with {NICENESS} (ray start, or the containers' environment)"
+    )
+
+
 class Ingress:
     """One replica: settings from the deployment (``values``, what ``Settings`` takes),
     threads sized to its CPUs, kernels ready before it serves."""
@@ -70,6 +91,8 @@ class Ingress:
                 "replicas share their store: set MRDEM_STORE_URL (postgresql://…) and"
                 " MRDEM_OBJECT_STORE_URL (s3://bucket/prefix)"
             )
+        if warning := niceness_warning():
+            log.warning("replica: %s", warning)
         seconds = engine.warmup(1)  # raises on failure: the replica fails to start
         log.info("replica ready: %d engine threads, kernels in %.1f s", threads, seconds)
 
@@ -125,7 +148,9 @@ def run(
     None: a new local one), Serve's HTTP proxy on ``settings.host:settings.port`` of every
     node (``proxies="HeadOnly"``: of the head only); with ``blocking``, until interrupted
     (then the application is deleted)."""
-    ray.init(address=address, namespace=NAMESPACE)
+    starts = not address and not os.environ.get("RAY_ADDRESS")  # a new local cluster
+    local = {"_system_config": {"worker_niceness": 0}} if starts else {}  # see NICENESS
+    ray.init(address=address, namespace=NAMESPACE, **local)
     serve.start(proxy_location=proxies, http_options={"host": settings.host, "port": settings.port})
     serve.run(
         application(settings, replicas, cpus),

@@ -42,6 +42,7 @@ def ray_cluster(postgres, s3, tmp_path_factory):
             "dashboard_port": free_port(),
             # a dead node is noticed within about a second, not fifteen
             "_system_config": {
+                "worker_niceness": 0,  # as the README says (service.cluster.deployment.NICENESS)
                 "health_check_period_ms": 300,
                 "health_check_failure_threshold": 3,
                 "health_check_timeout_ms": 300,

@@ -31,6 +31,7 @@ def test_mrdem_cluster_serve_deploys_on_a_ray_cluster(postgres, s3, tmp_path):
     env = {
         **os.environ,
         **HAPROXY_INGRESS,  # what docker/compose.cluster.yaml sets
+        "RAY_worker_niceness": "0",  # and this (the README's ray start)
         "MRDEM_STORE_URL": postgres.database(),
         "MRDEM_OBJECT_STORE_URL": s3.bucket(),
         "MRDEM_OBJECT_STORE_ENDPOINT": s3.endpoint,

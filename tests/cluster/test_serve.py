@@ -145,6 +145,8 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
             remote.setdefault(response.headers["X-Mrdem-Replica"], []).append(new[0].node_id)
     alive = [pid for pid in workers if os.path.exists(f"/proc/{pid}")]  # pooled: most stay
     assert alive and all(_environ(pid).get("MALLOC_ARENA_MAX") == "1" for pid in alive)
+    serving = [a.pid for a in list_actors(filters=[("state", "=", "ALIVE")], detail=True)]
+    assert all(_nice(pid) == 0 for pid in alive + serving)  # not Ray's default 15
     cpus = {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0)}
     for replica, nodes in remote.items():
         others = cpus - {replicas[replica]}
@@ -343,6 +345,11 @@ def _kill_node(cluster, node) -> None:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
     cluster.remove_node(node, allow_graceful=False)
+
+
+def _nice(pid: int) -> int:
+    """The nice value of ``pid`` (``/proc/<pid>/stat``)."""
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[16])
 
 
 def _jsonable(query: dict) -> dict:
