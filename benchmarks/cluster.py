@@ -24,12 +24,14 @@ store, the app deployed on Ray Serve (``service.cluster.application``).
    that splits, sent the batch in turn, request by request: each round's ratio compares
    the two under the same conditions (on a VM whose speed drifts, the separate clusters'
    figures moved 1.46–1.90× between two runs of the same code).
+4. **A node slowed by other work** (``slowed_node``): the split's search, request by request,
+   once a process spins on the CPU of the task's node.
 
 Needs ``mrdem[cluster]`` and the PostgreSQL server binaries. The client threads run on the
 same machine as the cluster: on 2 cores they take CPU from it (say so when quoting).
 
     .venv/bin/python benchmarks/cluster.py [--quick] [--replicas 1,2] [--clients 8] [--haproxy]
-        [--only serve|batch]
+        [--only serve|batch|slow]
 
 Writes ``bench-results/cluster.json`` (``cluster-haproxy.json`` with ``--haproxy``;
 ``-serve``/``-batch`` before ``.json`` with ``--only``).
@@ -38,6 +40,7 @@ Writes ``bench-results/cluster.json`` (``cluster-haproxy.json`` with ``--haproxy
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import multiprocessing
 import os
@@ -330,6 +333,77 @@ def ceiling(pairs: int, repeats: int) -> dict:
     return {"one_process_s": out[1], "two_processes_s": out[2], "speedup": out[1] / out[2]}
 
 
+def _busy(core: int, spinning) -> None:
+    """Spin on ``core``, forever: other work on a node's CPU (``spinning`` set once it
+    does)."""
+    os.sched_setaffinity(0, {core})
+    spinning.set()
+    while True:
+        pass
+
+
+def _tree(pid: int) -> list[int]:
+    """``pid`` and every process under it (``/proc/<pid>/task/<tid>/children``)."""
+    found, todo = [], [pid]
+    while todo:
+        found.append(pid := todo.pop())
+        for children in Path(f"/proc/{pid}/task").glob("*/children"):
+            with contextlib.suppress(OSError):  # gone meanwhile
+                todo.extend(int(c) for c in children.read_text().split())
+    return found
+
+
+def slowed_node(store: dict, pairs: int, repeats: int) -> dict:
+    """4. **A node slowed by other work**: a 2-node cluster, each node's processes on a CPU
+    of their own (the replica's node on the first, the other node on the second), the
+    batch warm while both are as fast; then a process spins on the second CPU and
+    ``repeats`` requests follow: the first is cut as the nodes have been (as fast as the
+    replica), the later ones by what the splitter measures. Each request's search and
+    ``Server-Timing``."""
+    from ray.util.state import list_actors
+
+    cores = sorted(os.sched_getaffinity(0))[:2]
+    cluster = RayCluster(2, 1, store)
+    spinner = None
+    try:
+        url = cluster.deploy(1, 0.1, task_cpus=0.9, split_pairs=min(pairs, 2000), split_chunks=2)
+        (replica,) = [
+            a
+            for a in list_actors(filters=[("state", "=", "ALIVE")])
+            if a.class_name.startswith("ServeReplica:")
+        ]
+        for node in cluster.cluster.worker_nodes:
+            core = cores[0] if node.node_id == replica.node_id else cores[1]
+            for pid in _tree(node.all_processes["raylet"][0].process.pid):
+                with contextlib.suppress(OSError):
+                    os.sched_setaffinity(pid, {core})
+        timings = _Timings()
+        with Client(url, timeout=600, transport=timings) as client:
+            mesh = client.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
+            query = columns(pairs, seed=5)
+            for _ in range(3):  # warm, both nodes as fast: the cut learns that
+                client.find_contacts([mesh], **query)
+            context = multiprocessing.get_context("spawn")
+            spinning = context.Event()
+            spinner = context.Process(target=_busy, args=(cores[1], spinning), daemon=True)
+            spinner.start()
+            if not spinning.wait(60):
+                raise RuntimeError("the spinning process did not start")
+            time.sleep(1.0)
+            del timings.seen[:]
+            for _ in range(repeats):
+                client.find_contacts([mesh], **query)
+    finally:
+        if spinner is not None:
+            spinner.kill()
+        cluster.close()
+    return {
+        "cores": cores,
+        "search_ms": [t["search"] for t in timings.seen],
+        "server_timing_ms": timings.seen,
+    }
+
+
 class RayCluster:
     """A head (no CPUs) and ``nodes`` worker nodes of ``cpus`` CPUs, the app deployed."""
 
@@ -387,8 +461,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="big-batch requests measured")
     parser.add_argument(
         "--only",
-        choices=("serve", "batch"),
-        help="only the Serve measures (1, 2), or the batch (3)",
+        choices=("serve", "batch", "slow"),
+        help="only the Serve measures (1, 2), the batch (3), or the slowed node (4)",
     )
     parser.add_argument(
         "--haproxy",
@@ -396,7 +470,15 @@ def main() -> None:
         help="Serve's HAProxy ingress straight to the replicas' HTTP servers"
         " (RAY_SERVE_ENABLE_HA_PROXY, RAY_SERVE_ENABLE_DIRECT_INGRESS: Ray 2.60 feature flags)",
     )
+    parser.add_argument(
+        "--worker-niceness",
+        type=int,
+        default=0,
+        help="the nice value of Ray's worker processes (replicas, tasks, actors):"
+        " RAY_worker_niceness, which Ray leaves at 15 unless set",
+    )
     args = parser.parse_args()
+    os.environ["RAY_worker_niceness"] = str(args.worker_niceness)  # noqa: SIM112 (Ray spells it so)
     if args.haproxy:  # before the cluster starts: its processes inherit them
         os.environ.update(
             {"RAY_SERVE_ENABLE_HA_PROXY": "1", "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1"}
@@ -404,6 +486,10 @@ def main() -> None:
     if args.quick:
         args.seconds, args.requests, args.repeats = 5.0, 100, 3
     counts = [int(c) for c in args.replicas.split(",")]
+
+    def wants(part: str) -> bool:
+        return args.only in (None, part)
+
     cpus = os.cpu_count() or 1
     out: dict = {"machine": machine(), "args": vars(args)}
     print(f"machine: {out['machine'].get('cpu')} ({cpus} CPUs)")
@@ -417,7 +503,7 @@ def main() -> None:
             "MRDEM_OBJECT_STORE_ENDPOINT": s3.endpoint,
         }
         plain = {}
-        for name, env in (("embedded", {}), ("shared", shared)) if args.only != "batch" else ():
+        for name, env in (("embedded", {}), ("shared", shared)) if wants("serve") else ():
             with ServiceProcess(
                 tmp / f"plain-{name}",
                 env={**os.environ, **env},
@@ -440,7 +526,7 @@ def main() -> None:
         cluster = RayCluster(1, cpus, store)
         try:
             out["serve"] = {}
-            for replicas in counts if args.only != "batch" else ():
+            for replicas in counts if wants("serve") else ():
                 url = cluster.deploy(replicas, args.replica_cpus)
                 row = {"loaded": loaded(url, args.clients, args.seconds, args.client_processes)}
                 if replicas == 1:
@@ -460,10 +546,10 @@ def main() -> None:
             cluster.close()
 
         out["batch"] = {}
-        if args.only != "serve":
+        if wants("batch"):
             out["batch_ceiling"] = ceiling(args.pairs, args.repeats)
             print(f"{args.pairs:,}-pair batch without Ray: {out['batch_ceiling']}")
-        for nodes in (1, 2) if args.only != "serve" else ():
+        for nodes in (1, 2) if wants("batch") else ():
             store = {**store, "store_url": postgres.database(), "object_store_url": s3.bucket()}
             cluster = RayCluster(nodes, 1, store)
             try:
@@ -474,7 +560,7 @@ def main() -> None:
                 print(f"{args.pairs:,}-pair batch, {nodes} node(s): {out['batch'][nodes]}")
             finally:
                 cluster.close()
-        if args.only != "serve":  # both on one 2-node cluster, request by request
+        if wants("batch"):  # both on one 2-node cluster, request by request
             store = {**store, "store_url": postgres.database(), "object_store_url": s3.bucket()}
             cluster = RayCluster(2, 1, store)
             try:
@@ -493,6 +579,10 @@ def main() -> None:
                 print(f"{args.pairs:,}-pair batch, paired: {out['batch_paired']}")
             finally:
                 cluster.close()
+        if wants("slow"):
+            store = {**store, "store_url": postgres.database(), "object_store_url": s3.bucket()}
+            out["slowed_node"] = slowed_node(store, args.pairs, max(args.repeats, 8))
+            print(f"{args.pairs:,}-pair batch, a slowed node: {out['slowed_node']}")
     finally:
         postgres.stop()
         s3.stop()
@@ -502,6 +592,13 @@ def main() -> None:
         summarise_serve(out, plain, counts)
     if out["batch"]:
         summarise_batch(out, args.pairs)
+    if "slowed_node" in out:
+        search = out["slowed_node"]["search_ms"]
+        print(
+            f"{args.pairs:,}-pair batch, the task's node slowed: search {search[0]:.0f} ms in the"
+            f" first request (cut as before), median of the last {len(search) // 2}"
+            f" {np.median(search[-(len(search) // 2) :]):.0f} ms (cut by measured speeds)"
+        )
     name = "cluster-haproxy.json" if args.haproxy else "cluster.json"
     if args.only:
         name = name.replace(".json", f"-{args.only}.json")
