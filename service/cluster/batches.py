@@ -87,7 +87,12 @@ class _Fetch:
         index = {part: k for k, part in enumerate(parts)}
         pending = list(parts)
         while pending:
-            ready, pending = ray.wait(pending, num_returns=1)  # here: fetch_local
+            try:
+                ready, pending = ray.wait(pending, num_returns=1)  # here: fetch_local
+            except Exception as error:  # Ray itself failing: every answer left failed so
+                for part in pending:
+                    self._answers[index[part]] = error
+                return
             for part in ready:
                 k = index[part]
                 try:
