@@ -215,6 +215,14 @@ class _Timings(httpx.HTTPTransport):
         self.seen.append({name: float(ms) for name, ms in entries})
         return response
 
+    def parts(self) -> dict[str, list[float]]:
+        """Each name → its ms in every answer seen (NaN where an answer lacked it)."""
+        return {name: [t.get(name, np.nan) for t in self.seen] for name in self.seen[-1]}
+
+    def medians(self) -> dict[str, float]:
+        """Each name → the median of its ms over the answers seen."""
+        return {name: float(np.median(v)) for name, v in self.parts().items()}
+
 
 def big_batch(url: str, pairs: int, repeats: int) -> dict:
     timings = _Timings()
@@ -229,7 +237,6 @@ def big_batch(url: str, pairs: int, repeats: int) -> dict:
             answer = client.find_contacts([mesh], **query)
             seconds.append(time.perf_counter() - start)
             searches.append(answer.stats["seconds"])  # the search (split, run, merged) alone
-    parts = {name: [t.get(name, np.nan) for t in timings.seen] for name in timings.seen[-1]}
     return {
         "pairs": pairs,
         "contacts": int(found.offsets[-1]),
@@ -237,8 +244,8 @@ def big_batch(url: str, pairs: int, repeats: int) -> dict:
         "median_s": float(np.median(seconds)),
         "search_seconds": searches,
         "search_median_s": float(np.median(searches)),
-        "server_timing_ms": parts,  # each request's Server-Timing entries
-        "server_timing_median_ms": {name: float(np.median(v)) for name, v in parts.items()},
+        "server_timing_ms": timings.parts(),  # each request's Server-Timing entries
+        "server_timing_median_ms": timings.medians(),
     }
 
 
@@ -275,14 +282,12 @@ def paired_batch(urls: dict, pairs: int, repeats: int) -> dict:
     first, second = list(urls)
     out: dict = {}
     for name in urls:
-        seen = timings[name].seen
-        parts = {k: [t.get(k, np.nan) for t in seen] for k in seen[-1]}
         out[name] = {
             "seconds": seconds[name],
             "median_s": float(np.median(seconds[name])),
             "search_seconds": searches[name],
             "search_median_s": float(np.median(searches[name])),
-            "server_timing_median_ms": {k: float(np.median(v)) for k, v in parts.items()},
+            "server_timing_median_ms": timings[name].medians(),
         }
     for key, what in (("seconds", "request"), ("search_seconds", "search")):
         ratios = np.array(out[first][key]) / np.array(out[second][key])
