@@ -12,7 +12,7 @@ import numpy as np
 
 from engine import Pose, find_contacts_batch
 
-__all__ = ["BatchSplitter", "RunSpeeds", "find", "merge", "split"]
+__all__ = ["BatchSplitter", "RunSpeeds", "SentPieces", "find", "merge", "split"]
 
 
 class BatchSplitter(Protocol):
@@ -82,14 +82,15 @@ class RunSpeeds:
         self, here: tuple[int, float], runs: Mapping[str, tuple[int, float]], prior: float
     ) -> None:
         """One split request: ``here`` this process's run ``(pairs, seconds)``, ``runs``
-        each place's ``(pairs, seconds from sent to answer here)``. Runs without pairs or
-        time teach nothing."""
+        each place's ``(pairs it answered, seconds from sent to its run's last answer
+        here)``. A place that answered none in that time is at its lower bound; runs
+        without time, and a request whose own run is empty or instant, teach nothing."""
         pairs, seconds = here
         if pairs <= 0 or seconds <= 0:
             return
         with self._lock:
             for place, (n, elapsed) in runs.items():
-                if n <= 0 or elapsed <= 0:
+                if n < 0 or elapsed <= 0:
                     continue
                 speed = (n * seconds) / (elapsed * pairs)  # its pairs/s over this process's
                 sample = min(max(speed, prior / self.bound), prior * self.bound)
@@ -100,6 +101,114 @@ class RunSpeeds:
         """Forget every place but ``places`` (those alive)."""
         with self._lock:
             self._speeds = {p: v for p, v in self._speeds.items() if p in places}
+
+
+class SentPieces:
+    """The runs sent to other places, each cut into pieces that its place searches front
+    to back, handing each piece's answer over as it ends; this process, once its own run
+    is searched, takes pieces back from the back of the runs: those not begun (while a
+    place has at least two left), and the one a place is on once it has been at it
+    ``patience`` times as long as this process would take for the whole piece (a stalled
+    or slowed place), or every piece left of a place that failed. The first answer of each
+    piece is kept. Thread-safe: the threads pulling the places' answers call
+    :meth:`handed` and :meth:`failed`, the request's thread :meth:`take` and :meth:`give`.
+
+    Parameters
+    ----------
+    sizes : per run, the pairs of each of its pieces (each > 0)
+    started : when the runs were sent (``time.perf_counter``)
+    patience : how much longer than this process a place may take for a piece it is on
+    """
+
+    def __init__(self, sizes: Sequence[Sequence[int]], started: float, patience: float = 1.5):
+        self.sizes = [list(run) for run in sizes]
+        self.patience = patience
+        self.answers: list[list] = [[None] * len(run) for run in self.sizes]
+        self.handed_pairs = [0] * len(self.sizes)  # pairs each place answered first
+        self.completed = [0.0] * len(self.sizes)  # when each run's last answer was here
+        self._unanswered = [len(run) for run in self.sizes]
+        self.errors: list[BaseException | None] = [None] * len(self.sizes)
+        self._front = [0] * len(self.sizes)  # pieces handed over: the place is on this one
+        self._back = [len(run) for run in self.sizes]  # from this piece on, taken back
+        self._since = [started] * len(self.sizes)  # when the place began its current piece
+        self._changed = threading.Condition()
+
+    def handed(self, run: int, piece: int, answer, at: float) -> None:
+        """Piece ``piece`` of run ``run`` (the place's next) answered there, here at ``at``."""
+        with self._changed:
+            self._front[run] = piece + 1
+            self._since[run] = at
+            if self._keep(run, piece, answer, at):
+                self.handed_pairs[run] += self.sizes[run][piece]
+            self._changed.notify_all()
+
+    def failed(self, run: int, error: BaseException) -> bool:
+        """Run ``run``'s place ended with ``error`` before handing every piece over: the
+        pieces left are this process's to take. Whether any was left (else the error
+        cost nothing: a place cancelled once its run was answered, say)."""
+        with self._changed:
+            if self.complete(run):
+                return False
+            self.errors[run] = error
+            self._changed.notify_all()
+            return True
+
+    def take(self, now: float, seconds_per_pair: float) -> tuple[int, int] | None:
+        """``(run, piece)`` for this process to search next (of the run with the most
+        pieces left), or None: nothing to take now (see :meth:`wait`)."""
+        with self._changed:
+            best, most = None, 0
+            for run in range(len(self.sizes)):
+                front, back = self._front[run], self._back[run]
+                left = back - front
+                if left <= 0 or self.complete(run):
+                    continue
+                if left == 1 and self.errors[run] is None:
+                    begun = now - self._since[run]  # the place is on it: is it stalled?
+                    if begun <= self.patience * self.sizes[run][front] * seconds_per_pair:
+                        continue
+                if left > most:
+                    best, most = run, left
+            if best is None:
+                return None
+            self._back[best] -= 1
+            return best, self._back[best]
+
+    def give(self, run: int, piece: int, answer, at: float) -> None:
+        """The answer of a piece this process took (kept unless its place's came first)."""
+        with self._changed:
+            self._keep(run, piece, answer, at)
+
+    def wait(self, now: float, seconds_per_pair: float) -> None:
+        """Until a place hands a piece over or fails, or one it is on may be taken."""
+        with self._changed:
+            due = [
+                self._since[run]
+                + self.patience * self.sizes[run][self._front[run]] * seconds_per_pair
+                for run in range(len(self.sizes))
+                if self._back[run] - self._front[run] == 1 and not self.complete(run)
+            ]
+            timeout = min(due, default=now + 1.0) - now
+            if sum(self._unanswered) and timeout > 0:
+                self._changed.wait(min(timeout, 1.0))
+
+    def complete(self, run: int) -> bool:
+        """Whether every piece of run ``run`` has its answer."""
+        return self._unanswered[run] == 0
+
+    def done(self) -> bool:
+        """Whether every piece has its answer."""
+        with self._changed:
+            return not any(self._unanswered)
+
+    def _keep(self, run: int, piece: int, answer, at: float) -> bool:
+        if self.answers[run][piece] is not None:
+            return False
+        self.answers[run][piece] = answer
+        self._unanswered[run] -= 1
+        if self._unanswered[run] == 0:
+            self.completed[run] = at
+        return True
 
 
 def merge(parts: list[dict]) -> dict:
