@@ -201,3 +201,22 @@ def run_readme_loop(url: str, monkeypatch, capsys) -> None:
     assert 0.3 < state.positions[0, 0] < 0.45  # it rolled, then was stopped
     assert abs(state.positions[0, 2] - 0.5) < 0.02  # resting on the plane
     assert "ball at" in capsys.readouterr().out
+
+
+def near_pairs(mesh_ids, n: int, seed: int) -> dict:
+    """``n`` pairs of the first mesh (a unit icosphere) with centres 2.0–2.06 apart: each
+    pair near contact."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d *= rng.uniform(2.0, 2.06, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return {
+        "meshes": mesh_ids,
+        "a": np.zeros(n, np.int64),
+        "b": np.zeros(n, np.int64),
+        "position_a": np.zeros((n, 3)),
+        "orientation_a": np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+        "position_b": d,
+        "orientation_b": q,
+    }

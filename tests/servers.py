@@ -4,13 +4,23 @@ server this machine lacks (the servers themselves: :mod:`mrdem_common.loopback`)
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import pytest
 
 from mrdem_common.serving import free_port
 
-__all__ = ["HAPROXY_INGRESS", "descendants", "free_port", "missing", "process_name"]
+__all__ = [
+    "HAPROXY_INGRESS",
+    "descendants",
+    "free_port",
+    "missing",
+    "process_name",
+    "titled",
+    "until_none_titled",
+    "until_titled",
+]
 
 #: Serve's HAProxy ingress straight to the replicas' own HTTP servers (Ray 2.60 feature
 #: flags, read by the processes a Ray node starts): what docker/compose.cluster.yaml and the
@@ -48,3 +58,32 @@ def process_name(pid: int) -> str:
         return Path(f"/proc/{pid}/comm").read_text().strip()
     except OSError:
         return ""
+
+
+def titled(title: str) -> int | None:
+    """The pid of a process whose title (Ray's: ``ray::<function>`` while it runs one)
+    starts with ``title``, if any."""
+    wanted = title.encode()
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if cmdline.read_bytes().startswith(wanted):
+                return int(cmdline.parent.name)
+        except OSError:  # gone meanwhile
+            continue
+    return None
+
+
+def until_titled(title: str, deadline: float) -> int:
+    """The pid of a process titled ``title…`` as soon as there is one (before
+    ``deadline``, ``time.monotonic``)."""
+    while time.monotonic() < deadline:
+        if (pid := titled(title)) is not None:
+            return pid
+    raise AssertionError(f"no process {title!r} ran")
+
+
+def until_none_titled(title: str, deadline: float) -> None:
+    """Until no process is titled ``title…`` (before ``deadline``)."""
+    while titled(title) is not None:
+        assert time.monotonic() < deadline, f"a process {title!r} still runs"
+        time.sleep(0.1)

@@ -4,9 +4,19 @@ pairs is cut into runs of consecutive pairs (:func:`service.search.split`), at m
 its banks, while each other run goes to another alive node with CPUs as a Ray task; the
 answers are merged in order (:func:`service.search.merge`): the same arrays as one process's
 search. A run's length is in proportion to how fast its node has searched this replica's
-runs, relative to the replica, from the moment the runs are sent to the moment the answer is
-in hand (:class:`service.search.RunSpeeds`: the hand-off counts; at first, the engine
-threads that search it), so that the runs end together.
+runs, relative to the replica, from the moment the runs are sent to the moment its last
+answer is in hand (:class:`service.search.RunSpeeds`: the hand-off counts; at first, the
+engine threads that search it), so that the runs end together.
+
+A task searches its run in :data:`PIECES` pieces, front to back, and hands each piece's
+answer over as it ends (a streaming generator task): the replica pulls each as soon as it
+is ready, while it still searches its own run, and once its own run is searched it takes
+back, from the back of the runs, the pieces a node has not begun — and the one it is on,
+once it has been at it half as long again as the replica would be for the whole piece
+(:class:`service.search.SentPieces`). So a request ends when its pieces do, whatever
+happens to the nodes' speeds meanwhile (a neighbour busy on one node, a cold worker), and a
+node that is slow loses its share within the request, not only over the next ones. A task
+whose pieces have all been answered is cancelled (its node is free for the next request).
 
 The nodes for a request's meshes are ranked by rendezvous hashing: every replica sends the
 same meshes to the same nodes while they are alive (their trees on disk there, their banks
@@ -14,19 +24,19 @@ in the workers), a node's death moves only its runs, and other meshes rank the n
 otherwise (the load spreads). A task loads the trees from the store's blobs (a node keeps a
 bounded copy of those it read: ``data_dir/tree-cache``) and keeps their banks for the next
 request in its worker process; its triangle pairs travel as int32 (half the bytes through
-Ray's object store), pulled to the replica as soon as they are ready, while the replica
-still searches its own run.
+Ray's object store).
 
-A run whose task fails (its node died, it raised: a node that cannot open the store, say)
-is searched by the replica after the others, with a warning in the log: the answer is
-whole. Ray does not run such a task again (``max_retries=0``): its retry would start a
-worker on another node, which loads Python, the kernels, the trees (seconds: 9 s measured
-on the 2-vCPU VM), where the replica has them in memory."""
+The pieces left of a task that fails (its node died, it raised: a node that cannot open the
+store, say) are taken back and searched by the replica, with a warning in the log: the
+answer is whole. Ray does not run such a task again (``max_retries=0``): its retry would
+start a worker on another node, which loads Python, the kernels, the trees (seconds: 9 s
+measured on the 2-vCPU VM), where the replica has them in memory."""
 
 from __future__ import annotations
 
 import hashlib
 import logging
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -37,7 +47,7 @@ from ray.exceptions import RayError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from ..banks import BankCache
-from ..search import RunSpeeds, find, merge, split
+from ..search import RunSpeeds, SentPieces, find, merge, split
 from ..settings import Settings
 from ..store import Store, open_store
 
@@ -58,58 +68,89 @@ def _worker_store(settings: Settings) -> tuple[Store, BankCache]:
         return _WORKER[key]
 
 
-def _search_chunk(settings: Settings, meshes, columns, kernel, hierarchy, precision, threads):
-    """:func:`service.search.find` of a run, in a Ray task: ``(answer, its seconds)``."""
-    start = time.perf_counter()
+#: Pieces of each run sent to another node: its task hands each piece's answer over as it
+#: ends (the hand-off of all but the last overlaps the search), and the replica can take
+#: back the pieces a node has not begun.
+PIECES = 8
+
+
+def _search_pieces(settings: Settings, meshes, run, pieces, kernel, hierarchy, precision, threads):
+    """:func:`service.search.find` of each of ``pieces`` consecutive pieces of ``run``
+    (:func:`service.search.split`, equal weights), front to back, in a Ray task: yields
+    ``(answer, its seconds)`` per piece, and stops at the next piece once cancelled."""
     # arrays from the object store are read-only: Numba would compile read-only variants
-    columns = tuple(np.array(c) for c in columns)
+    run = tuple(np.array(c) for c in run)
     store, banks = _worker_store(settings)
-    found = find(meshes, columns, kernel, hierarchy, precision, threads, store, banks)
-    pairs = found["pairs"]
-    if pairs.size == 0 or pairs.max() < 2**31:  # triangle indices: int32 in transit
-        found["pairs"] = pairs.astype(np.int32)
-    return found, time.perf_counter() - start
-
-
-class _Fetch:
-    """The tasks' answers pulled here as each is ready, by a thread of its own from now
-    on: a task's answer crosses from its node's object store while this process still
-    searches its own run (``ray.get`` pulls an object only when called); ``arrived[k]``
-    is when part k's answer was here (``time.perf_counter``)."""
-
-    def __init__(self, parts: list) -> None:
-        self._answers: list = [None] * len(parts)
-        self.arrived = [0.0] * len(parts)
-        self._thread = threading.Thread(target=self._get, args=(parts,), daemon=True)
-        self._thread.start()
-
-    def _get(self, parts: list) -> None:
-        index = {part: k for k, part in enumerate(parts)}
-        pending = list(parts)
-        while pending:
-            try:
-                ready, pending = ray.wait(pending, num_returns=1)  # here: fetch_local
-            except Exception as error:  # Ray itself failing: every answer left failed so
-                for part in pending:
-                    self._answers[index[part]] = error
+    with _Cancel() as cancel:
+        for piece in split(run, [1.0] * pieces):
+            if cancel.requested:
                 return
-            for part in ready:
-                k = index[part]
-                try:
-                    self._answers[k] = ray.get(part)
-                except Exception as error:  # handed to the request's thread by result()
-                    self._answers[k] = error
-                self.arrived[k] = time.perf_counter()
+            start = time.perf_counter()
+            found = find(meshes, piece, kernel, hierarchy, precision, threads, store, banks)
+            pairs = found["pairs"]
+            if pairs.size == 0 or pairs.max() < 2**31:  # triangle indices: int32 in transit
+                found["pairs"] = pairs.astype(np.int32)
+            yield found, time.perf_counter() - start
 
-    def result(self) -> list:
-        """Each task's answer, in order, or the :class:`ray.exceptions.RayError` it ended
-        with (its node or worker died, it raised, it was cancelled); any other error raised
-        here."""
-        self._thread.join()
-        for answer in self._answers:
-            if isinstance(answer, Exception) and not isinstance(answer, RayError):
-                raise answer
-        return self._answers
+
+class _Cancel:
+    """While a task runs: Ray's cancel noted, not raised. Ray cancels a running task by
+    simulating SIGINT in its worker's main thread (``_thread.interrupt_main``), which
+    Python's own handler raises as ``KeyboardInterrupt`` wherever the thread is — in a
+    kernel's dispatch, it crashed the worker (SIGSEGV, measured), and the next request's
+    task waited seconds for a fresh one. This handler only sets :attr:`requested`; the
+    previous handler is back when the task ends. Off the main thread nothing changes."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._previous = None
+
+    def _note(self, signum, frame) -> None:
+        self.requested = True
+
+    def __enter__(self) -> _Cancel:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._note)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+def _pull(board: SentPieces, run: int, pieces, seconds: list) -> None:
+    """Run ``run``'s answers, pulled here as each is handed over (``ray.get`` pulls an
+    object from another node only when called): into ``board``, their seconds in the task
+    into ``seconds[run]``; how the task ended, if it failed, too."""
+    piece = 0
+    try:
+        for ref in pieces:  # the next piece's answer, or the error the task ended with
+            answer, took = ray.get(ref)
+            seconds[run] += took  # first: the request may end with the hand-over
+            board.handed(run, piece, answer, time.perf_counter())
+            piece += 1
+    except BaseException as error:  # noqa: BLE001 - the pieces left are the replica's
+        board.failed(run, error)  # (SystemExit: Ray shut down under a cancelled task's end)
+
+
+def _take_back(board: SentPieces, pieces, here, per_pair: float) -> tuple[float, float]:
+    """Pieces taken back from the runs sent (``pieces[run][piece]``) and searched here
+    (``here``, ``per_pair`` seconds a pair) until every piece has its answer: ``(their
+    seconds, when the last ended)``."""
+    busy, ended = 0.0, 0.0
+    while True:
+        now = time.perf_counter()
+        picked = board.take(now, per_pair)
+        if picked is None:
+            if board.done():
+                return busy, ended
+            board.wait(now, per_pair)
+            continue
+        run, piece = picked
+        answer = here(pieces[run][piece])
+        ended = time.perf_counter()
+        busy += ended - now
+        board.give(run, piece, answer, ended)
 
 
 def ranked(meshes, nodes) -> list[str]:
@@ -130,7 +171,7 @@ class RaySplitter:
 
     def __init__(self, settings: Settings, threshold: int, chunks: int, cpus: float) -> None:
         self.settings, self.threshold, self.most, self.cpus = settings, threshold, chunks, cpus
-        self._task = ray.remote(_search_chunk)
+        self._task = ray.remote(_search_pieces)
         self._threads = max(1, int(round(cpus)))  # a task's engine threads, and its settings
         self._task_settings = settings.model_copy(update={"engine_threads": self._threads})
         self._node = ray.get_runtime_context().get_node_id()  # this process's
@@ -152,10 +193,11 @@ class RaySplitter:
         self, meshes, columns, kernel, hierarchy, precision, here: Callable[[tuple], dict]
     ) -> dict:
         """The merged answer, with ``timing`` (seconds): ``submit`` (the nodes chosen, the
-        runs cut and sent), ``here`` (this process's run), ``task`` (the slowest task, in
-        its worker), ``wait`` (from the end of this process's run to every answer here),
-        ``merge``. A run whose task failed (its node or worker died, it raised) is searched
-        here after the others, with a warning in the log."""
+        runs cut and sent), ``here`` (this process's run), ``taken`` (pieces taken back and
+        searched here), ``task`` (the busiest node's search, in its worker), ``wait``
+        (from the end of this process's last search to every answer here), ``merge``. The
+        pieces left of a task that failed (its node or worker died, it raised) are taken
+        back too, with a warning in the log."""
         start = time.perf_counter()
         n = len(columns[0])
         alive = self.others()
@@ -163,50 +205,64 @@ class RaySplitter:
         nodes = ranked(meshes, alive)[: min(self.most, n) - 1]
         if not nodes:
             return here(columns)
-        threads, settings = self._threads, self._task_settings
         mine, *runs = split(columns, [1.0, *self.speeds.weights(nodes, self._prior)])
-        sent, parts = [], []
-        for node, run in zip(nodes, runs, strict=True):
-            if len(run[0]) == 0:  # more weight elsewhere than pairs to go round
-                continue
-            strategy = NodeAffinitySchedulingStrategy(node, soft=True, _spill_on_unavailable=True)
-            task = self._task.options(
-                num_cpus=self.cpus, scheduling_strategy=strategy, max_retries=0
-            )
-            parts.append(task.remote(settings, meshes, run, kernel, hierarchy, precision, threads))
-            sent.append((node, run))
+        sent = [(node, run) for node, run in zip(nodes, runs, strict=True) if len(run[0])]
+        pieces = [split(run, [1.0] * min(PIECES, len(run[0]))) for _, run in sent]
         submitted = time.perf_counter()
-        fetch = _Fetch(parts)  # each answer pulled here as soon as it is ready
+        board = SentPieces([[len(p[0]) for p in run] for run in pieces], submitted)
+        generators = [
+            self._send(node, run, len(cut), meshes, kernel, hierarchy, precision)
+            for (node, run), cut in zip(sent, pieces, strict=True)
+        ]
+        seconds = [0.0] * len(sent)  # each task's, in its worker
+        for k, generator in enumerate(generators):
+            threading.Thread(target=_pull, args=(board, k, generator, seconds), daemon=True).start()
         try:
             found = [here(mine)] if len(mine[0]) else []  # while the tasks run
-        except BaseException:
-            for part in parts:
-                ray.cancel(part)
-            raise
-        searched = time.perf_counter()
-        answers = fetch.result()
-        seconds, measured = [], {}
-        for (node, run), answer, at in zip(sent, answers, fetch.arrived, strict=True):
-            if isinstance(answer, RayError):
-                log.warning(
-                    "a contacts task of %d pairs sent to node %s failed; searched here: %s",
-                    len(run[0]),
-                    node,
-                    answer,
-                )
-                answer = here(run), 0.0
+            searched = time.perf_counter()
+            per_pair = (searched - submitted) / max(len(mine[0]), 1)
+            taken, ended = _take_back(board, pieces, here, per_pair)
+        finally:
+            for run, generator in enumerate(generators):  # a run answered, or a failure here
+                if not board.complete(run) or board.handed_pairs[run] < len(sent[run][1][0]):
+                    ray.cancel(generator)  # idle at once for the next request
+        last = max(searched, ended)  # this process's last search
+        arrived = max([last, *board.completed])
+        measured = {}
+        for run, (node, cut) in enumerate(sent):
+            error = board.errors[run]
+            if error is None:
+                measured[node] = (board.handed_pairs[run], board.completed[run] - submitted)
             else:
-                measured[node] = (len(run[0]), at - submitted)
-            found.append(answer[0])
-            seconds.append(answer[1])
-        arrived = time.perf_counter()
+                log.warning(
+                    "a contacts task of %d pairs sent to node %s failed; its pieces left "
+                    "were searched here: %s",
+                    len(cut[0]),
+                    node,
+                    error,
+                    exc_info=None if isinstance(error, RayError) else error,
+                )
         self.speeds.update((len(mine[0]), searched - submitted), measured, self._prior)
+        found += [answer for run in board.answers for answer in run]
         merged = merge(found)
         merged["timing"] = {
             "submit": submitted - start,
             "here": searched - submitted,
+            "taken": taken,
             "task": max(seconds, default=0.0),
-            "wait": arrived - searched,
+            "wait": arrived - last,
             "merge": time.perf_counter() - arrived,
         }
         return merged
+
+    def _send(self, node: str, run, pieces: int, meshes, kernel, hierarchy, precision):
+        """Run ``run`` as ``pieces`` pieces in a task on ``node``: its answers' refs."""
+        strategy = NodeAffinitySchedulingStrategy(node, soft=True, _spill_on_unavailable=True)
+        task = self._task.options(
+            num_cpus=self.cpus,
+            scheduling_strategy=strategy,
+            max_retries=0,
+            num_returns="streaming",
+        )
+        settings, threads = self._task_settings, self._threads
+        return task.remote(settings, meshes, run, pieces, kernel, hierarchy, precision, threads)

@@ -17,8 +17,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from harness import InProcessService, run_readme_loop, server_timing
-from servers import descendants
+from harness import InProcessService, near_pairs, run_readme_loop, server_timing
+from servers import descendants, until_none_titled, until_titled
 
 from clients import Client
 from engine import shapes
@@ -96,10 +96,10 @@ def _environ(pid: int) -> dict[str, str]:
 
 def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray_cluster, embedded):
     """A request of 3,000 pairs runs as two runs: one in the replica that took it, one as a
-    Ray task on another node — the one that ranks first for the mesh among the others, so
-    each of a replica's requests goes back to the same node (its tree on disk, its banks in
-    memory; a random node would be the same one time in two) — and answers what the
-    embedded service answers; its ``Server-Timing`` names the split's parts."""
+    Ray task (in pieces) on another node — the one that ranks first for the mesh among the
+    others, so each of a replica's requests goes back to the same node (its tree on disk,
+    its banks in memory; a random node would be the same one time in two) — and answers
+    what the embedded service answers; its ``Server-Timing`` names the split's parts."""
     import ray
     from ray.util.state import list_actors, list_tasks
 
@@ -107,42 +107,54 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
 
     cluster, url, settings = ray_cluster
     n = 3 * settings.split_pairs
-    seen: set[str] = set()
+    address = f"http://{cluster.webui_url}"
+    before = list_tasks(address=address, filters=[("func_or_class_name", "=", "_search_pieces")])
+    seen = {t.task_id for t in before}  # earlier tests' tasks
     remote: dict[str, list[str]] = {}  # replica → the nodes of its requests' tasks
     workers: set[int] = set()  # the processes that ran the tasks
+    searched: list[float] = []  # the tasks' seconds
     with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
-        ids = [_upload(c, shapes.box()) for c in (client, alone)]
-        query = _query(ids[:1], n, seed=11)
+        # near contact: long enough that the task hands pieces over before the replica,
+        # done with its own run, takes the rest back
+        ids = [_upload(c, shapes.icosphere(3)) for c in (client, alone)]
+        query = near_pairs(ids[:1], n, seed=11)
         expected = alone.find_contacts(**query)
         replicas = {  # replica id → its node
             a.name.rsplit("#", 1)[-1]: a.node_id
             for a in list_actors(filters=[("state", "=", "ALIVE")], limit=1000)
             if a.class_name.startswith("ServeReplica:")
         }
-        for _ in range(8):
+        for _ in range(5):
             response = httpx.post(f"{url}/v1/contacts", json=_jsonable(query), timeout=120)
             assert response.status_code == 200, response.text
             answer = response.json()
             for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
                 np.testing.assert_array_equal(answer[name], getattr(expected, name), name)
             timing = server_timing(response)  # where the time went, the split's parts too
-            assert list(timing) == ["search", "submit", "here", "task", "wait", "merge", "encode"]
-            assert timing["search"] >= timing["here"] + timing["wait"] and timing["task"] > 0
+            parts = ["search", "submit", "here", "taken", "task", "wait", "merge", "encode"]
+            assert list(timing) == parts
+            assert timing["search"] >= timing["here"] + timing["taken"] + timing["wait"]
+            searched.append(timing["task"])  # 0 where every piece was taken back (cold)
             deadline = time.monotonic() + 20
             while True:  # the state API hears of finished tasks a moment later
                 tasks = list_tasks(
-                    address=f"http://{cluster.webui_url}",
-                    filters=[("func_or_class_name", "=", "_search_chunk")],
+                    address=address,
+                    filters=[("func_or_class_name", "=", "_search_pieces")],
                     detail=True,
                 )
-                new = [t for t in tasks if t.task_id not in seen and t.state == "FINISHED"]
+                # ended: FINISHED, or FAILED when cancelled once its pieces were answered
+                ended = ("FINISHED", "FAILED")
+                new = [t for t in tasks if t.task_id not in seen and t.state in ended]
                 if new or time.monotonic() > deadline:
                     break
                 time.sleep(0.2)
             assert len(new) == 1, new  # one run here, one task
+            if new[0].node_id is None:  # cancelled before it began: every piece taken back
+                continue
             workers.add(new[0].worker_pid)
             seen.add(new[0].task_id)
             remote.setdefault(response.headers["X-Mrdem-Replica"], []).append(new[0].node_id)
+    assert sum(t > 0 for t in searched) >= len(searched) // 2, searched  # the first: cold
     alive = [pid for pid in workers if os.path.exists(f"/proc/{pid}")]  # pooled: most stay
     assert alive and all(_environ(pid).get("MALLOC_ARENA_MAX") == "1" for pid in alive)
     actors = list_actors(filters=[("state", "=", "ALIVE")], detail=True)
@@ -156,9 +168,9 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
 
 def test_a_big_batch_whose_task_node_dies_is_answered_in_full(ray_cluster, embedded):
     """The node running a split request's task is killed while the task runs: the
-    replica searches the task's run itself (Ray does not run the task again: its one
-    attempt failed, none other ran) and the request answers what the embedded service
-    answers, whole."""
+    replica searches the pieces the task had not handed over (Ray does not run the task
+    again: its one attempt failed, none other ran) and the request answers what the
+    embedded service answers, whole."""
     from ray.util.state import list_tasks
 
     cluster, url, settings = ray_cluster
@@ -168,14 +180,17 @@ def test_a_big_batch_whose_task_node_dies_is_answered_in_full(ray_cluster, embed
         Client(embedded.url, transport=embedded.transport) as alone,
     ):
         ids = [_upload(c, shapes.icosphere(3)) for c in (client, alone)]
-        query = _near(ids[:1], n, seed=12)
+        query = near_pairs(ids[:1], n, seed=12)
         expected = alone.find_contacts(**query)
+        until_none_titled(
+            "ray::_search_pieces", deadline=time.monotonic() + 30
+        )  # earlier tests' tasks
         answers: dict = {}
         request = threading.Thread(
             target=lambda: answers.update(found=client.find_contacts(**query))
         )
         request.start()
-        pid = _running("ray::_search_chunk", deadline=time.monotonic() + 60)
+        pid = until_titled("ray::_search_pieces", deadline=time.monotonic() + 60)
         (node,) = [
             w
             for w in cluster.worker_nodes
@@ -190,7 +205,7 @@ def test_a_big_batch_whose_task_node_dies_is_answered_in_full(ray_cluster, embed
     while True:  # the state API hears of ended tasks a moment later
         tasks = list_tasks(
             address=address,
-            filters=[("func_or_class_name", "=", "_search_chunk")],
+            filters=[("func_or_class_name", "=", "_search_pieces")],
             detail=True,
             limit=10_000,
         )
@@ -210,14 +225,18 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     """A node that cannot search (here: its data directory cannot be made, so the task's
     store does not open) fails its task with an error (Ray runs a task again only when its
     worker or node was lost): the splitter searches that run where the request is, the
-    answer is still the embedded service's, whole, and the log names the node."""
+    answer is still the embedded service's, whole, and the log names the node. (The
+    replica's own run ends once the task has failed: a task failing after every piece was
+    taken back costs nothing, and is not logged.)"""
+    from ray.util.state import list_tasks
+
     from service.banks import BankCache
     from service.cluster.batches import RaySplitter, ranked
     from service.models import ColumnarQuery
     from service.search import find, split
     from service.store import open_store
 
-    _, url, settings = ray_cluster
+    cluster, url, settings = ray_cluster
     with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
         ids = [_upload(c, shapes.box()) for c in (client, alone)]
         query = _query(ids[:1], 2 * settings.split_pairs, seed=13)
@@ -230,13 +249,26 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     columns = tuple(getattr(valid, k) for k in ("a", "position_a", "orientation_a", "b"))
     columns += (valid.position_b, valid.orientation_b)
 
+    options = ("hybrid", True, "float64")
+
     def here(run: tuple) -> dict:
-        return find(ids[:1], run, "hybrid", True, "float64", 1, store, banks)
+        return find(ids[:1], run, *options, 1, store, banks)
+
+    address = f"http://{cluster.webui_url}"
+    failed = [("func_or_class_name", "=", "_search_pieces"), ("state", "=", "FAILED")]
+    before = {t.task_id for t in list_tasks(address=address, filters=failed)}
+
+    def long_here(run: tuple) -> dict:  # a replica's run that outlasts the task's failure
+        deadline = time.monotonic() + 60
+        while not {t.task_id for t in list_tasks(address=address, filters=failed)} - before:
+            assert time.monotonic() < deadline, "the task never failed"
+            time.sleep(0.1)
+        return here(run)
 
     node = ranked(ids[:1], splitter.others())[0]  # where its task goes
     try:
         with caplog.at_level(logging.WARNING, logger="mrdem.cluster"):
-            found = splitter.find(ids[:1], columns, "hybrid", True, "float64", here=here)
+            found = splitter.find(ids[:1], columns, *options, here=long_here)
     finally:
         store.close()
     for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
@@ -244,40 +276,92 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     (warning,) = [r for r in caplog.records if r.name == "mrdem.cluster"]
     sent = len(split(columns, [settings.engine_threads, 1])[1][0])  # the task's run
     assert f"a contacts task of {sent} pairs" in warning.getMessage()
-    assert f"sent to node {node} failed; searched here" in warning.getMessage()
+    assert f"sent to node {node} failed; its pieces left were searched here" in (
+        warning.getMessage()
+    )
 
 
-def _near(mesh_ids, n: int, seed: int) -> dict:
-    """``n`` pairs of the first mesh (a unit icosphere) with centres 2.0–2.06 apart: each
-    pair near contact."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(n, 3))
-    d *= rng.uniform(2.0, 2.06, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return {
-        "meshes": mesh_ids,
-        "a": np.zeros(n, np.int64),
-        "b": np.zeros(n, np.int64),
-        "position_a": np.zeros((n, 3)),
-        "orientation_a": np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
-        "position_b": d,
-        "orientation_b": q,
-    }
+def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
+    """A node measured four times as fast as it is gets four fifths of a request: the
+    replica, done with its fifth, takes back the pieces the node has not begun — the answer
+    is still the embedded service's, ``Server-Timing`` counts the time taken back, and the
+    node's measured speed falls."""
+    from service.banks import BankCache
+    from service.cluster.batches import RaySplitter, ranked
+    from service.models import ColumnarQuery
+    from service.search import find
+    from service.store import open_store
+
+    _, url, settings = ray_cluster
+    with (
+        Client(url, timeout=120) as client,
+        Client(embedded.url, transport=embedded.transport) as alone,
+    ):
+        ids = [_upload(c, shapes.icosphere(3)) for c in (client, alone)]
+        query = near_pairs(ids[:1], 4 * settings.split_pairs, seed=14)
+        expected = alone.find_contacts(**query)
+    store = open_store(settings)
+    banks = BankCache(store)
+    valid = ColumnarQuery.model_validate(query)
+    columns = tuple(getattr(valid, k) for k in ("a", "position_a", "orientation_a", "b"))
+    columns += (valid.position_b, valid.orientation_b)
+
+    def here(run: tuple) -> dict:
+        return find(ids[:1], run, "hybrid", True, "float64", 1, store, banks)
+
+    splitter = RaySplitter(settings, 1, 2, 0.5)
+    node = ranked(ids[:1], splitter.others())[0]
+    try:  # a first request warms the banks here and in the node's worker
+        splitter.find(ids[:1], columns, "hybrid", True, "float64", here=here)
+        for _ in range(30):  # then the node is measured at 4x what it is (both 1 thread)
+            splitter.speeds.update((1, 1.0), {node: (4, 1.0)}, 1.0)
+        (fast,) = splitter.speeds.weights([node], 1.0)
+        assert fast == pytest.approx(4.0, rel=1e-3)
+        found = splitter.find(ids[:1], columns, "hybrid", True, "float64", here=here)
+    finally:
+        store.close()
+    for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
+        np.testing.assert_array_equal(found[name], getattr(expected, name), name)
+    assert found["timing"]["taken"] > 0
+    assert splitter.speeds.weights([node], 1.0)[0] < fast
 
 
-def _running(title: str, deadline: float) -> int:
-    """The pid of a process whose title (Ray's: ``ray::<function>`` while it runs one)
-    starts with ``title``, as soon as there is one."""
-    wanted = title.encode()
-    while time.monotonic() < deadline:
-        for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
-            try:
-                if cmdline.read_bytes().startswith(wanted):
-                    return int(cmdline.parent.name)
-            except OSError:  # gone meanwhile
-                continue
-    raise AssertionError(f"no process {title!r} ran")
+def test_a_cancelled_task_ends_at_its_next_piece_and_its_worker_lives_on(ray_cluster):
+    """Ray cancels a running task by simulating SIGINT in its worker: the splitter's task
+    notes it and ends before its next piece, in the same worker, which stays for the next
+    request (Python's own KeyboardInterrupt, raised inside a kernel's dispatch, killed the
+    worker: SIGSEGV)."""
+    import ray
+    from ray.exceptions import RayError
+
+    from service.cluster.batches import _search_pieces
+
+    _, url, settings = ray_cluster
+    until_none_titled("ray::_search_pieces", deadline=time.monotonic() + 30)  # earlier tests' tasks
+    with Client(url) as client:
+        mesh = client.upload_mesh(shapes.icosphere(3), epsilon=0.05).id
+    query = near_pairs([mesh], 1600, seed=21)
+    run = tuple(query[k] for k in ("a", "position_a", "orientation_a", "b", "position_b"))
+    run += (query["orientation_b"],)
+    task = ray.remote(_search_pieces).options(
+        num_cpus=settings.task_cpus, max_retries=0, num_returns="streaming"
+    )
+    pieces = 16
+    answers = task.remote(settings, [mesh], run, pieces, "hybrid", True, "float64", 1)
+    worker = until_titled("ray::_search_pieces", deadline=time.monotonic() + 60)
+    handed = 0
+    for ref in answers:
+        try:
+            ray.get(ref)
+        except RayError:  # cancelled: the end of the stream
+            break
+        handed += 1
+        if handed == 2:
+            ray.cancel(answers)
+    # the piece on its way and the one it was on, at most
+    assert 2 <= handed <= 4 < pieces, handed
+    time.sleep(1.0)
+    assert os.path.exists(f"/proc/{worker}"), "the worker died"
 
 
 @pytest.mark.parametrize("scheme", ["explicit", "implicit-midpoint"])
