@@ -192,6 +192,10 @@ class SentPieces:
             if sum(self._unanswered) and timeout > 0:
                 self._changed.wait(min(timeout, 1.0))
 
+    def begun(self, run: int) -> int:
+        """Pieces of run ``run`` its place has handed over (so far: it goes front to back)."""
+        return self._front[run]
+
     def complete(self, run: int) -> bool:
         """Whether every piece of run ``run`` has its answer."""
         return self._unanswered[run] == 0

@@ -114,6 +114,13 @@ class Settings(BaseSettings):
         description="runs a split contacts request is cut into, at most: one in the replica,"
         " the others as Ray tasks on other nodes (1: no split)",
     )
+    split_pieces: int = Field(
+        2,
+        ge=1,
+        description="pieces each task searches its run in, handing each answer over as it"
+        " ends; the replica takes back pieces a node has not begun (more: finer balance, more"
+        " hand-overs)",
+    )
     task_cpus: float = Field(1.0, gt=0, description="CPUs of each contacts task")
     replica_access_log: bool = Field(
         False,

@@ -8,15 +8,18 @@ runs, relative to the replica, from the moment the runs are sent to the moment i
 answer is in hand (:class:`service.search.RunSpeeds`: the hand-off counts; at first, the
 engine threads that search it), so that the runs end together.
 
-A task searches its run in :data:`PIECES` pieces, front to back, and hands each piece's
-answer over as it ends (a streaming generator task): the replica pulls each as soon as it
-is ready, while it still searches its own run, and once its own run is searched it takes
-back, from the back of the runs, the pieces a node has not begun — and the one it is on,
-once it has been at it half as long again as the replica would be for the whole piece
-(:class:`service.search.SentPieces`). So a request ends when its pieces do, whatever
-happens to the nodes' speeds meanwhile (a neighbour busy on one node, a cold worker), and a
-node that is slow loses its share within the request, not only over the next ones. A task
-whose pieces have all been answered is cancelled (its node is free for the next request).
+A task searches its run in ``MRDEM_SPLIT_PIECES`` pieces (2), front to back, and hands
+each piece's answer over as it ends (a streaming generator task): the replica pulls each as
+soon as it is ready, while it still searches its own run, and once its own run is searched
+it takes back, from the back of the runs, the pieces a node has not begun — and the one it
+is on, once it has been at it half as long again as the replica would be for the whole
+piece (:class:`service.search.SentPieces`). So a request ends when its pieces do, whatever
+happens to a node meanwhile (a neighbour busy on it, a cold worker, a stall), and a slow
+node loses its share within the request, not only over the next ones. Each piece costs a
+hand-over: on the 2-vCPU VM, 8 pieces took the split from 1.59x to 1.33x (BENCHMARKS.md).
+A task no longer needed is cancelled once it has handed a piece over (it stops at its next
+one); one that has not may still be starting, and is left to end — its node gets no other
+task of this replica's until it has (:meth:`RaySplitter._stop`).
 
 The nodes for a request's meshes are ranked by rendezvous hashing: every replica sends the
 same meshes to the same nodes while they are alive (their trees on disk there, their banks
@@ -34,6 +37,7 @@ measured on the 2-vCPU VM), where the replica has them in memory."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import signal
@@ -66,12 +70,6 @@ def _worker_store(settings: Settings) -> tuple[Store, BankCache]:
             store = open_store(settings)
             _WORKER[key] = (store, BankCache(store))
         return _WORKER[key]
-
-
-#: Pieces of each run sent to another node: its task hands each piece's answer over as it
-#: ends (the hand-off of all but the last overlaps the search), and the replica can take
-#: back the pieces a node has not begun.
-PIECES = 8
 
 
 def _search_pieces(settings: Settings, meshes, run, pieces, kernel, hierarchy, precision, threads):
@@ -118,10 +116,10 @@ class _Cancel:
             signal.signal(signal.SIGINT, self._previous)
 
 
-def _pull(board: SentPieces, run: int, pieces, seconds: list) -> None:
+def _pull(board: SentPieces, run: int, pieces, seconds: list, ended: Callable[[], None]):
     """Run ``run``'s answers, pulled here as each is handed over (``ray.get`` pulls an
     object from another node only when called): into ``board``, their seconds in the task
-    into ``seconds[run]``; how the task ended, if it failed, too."""
+    into ``seconds[run]``; how the task ended, if it failed, too; ``ended()`` at its end."""
     piece = 0
     try:
         for ref in pieces:  # the next piece's answer, or the error the task ended with
@@ -131,6 +129,18 @@ def _pull(board: SentPieces, run: int, pieces, seconds: list) -> None:
             piece += 1
     except BaseException as error:  # noqa: BLE001 - the pieces left are the replica's
         board.failed(run, error)  # (SystemExit: Ray shut down under a cancelled task's end)
+    finally:
+        ended()
+
+
+class _Task:
+    """A task sent, as its request and its puller see it: its node, whether it has ended,
+    whether it was left to end on its own."""
+
+    __slots__ = ("ended", "left", "node")
+
+    def __init__(self, node: str) -> None:
+        self.node, self.ended, self.left = node, False, False
 
 
 def _take_back(board: SentPieces, pieces, here, per_pair: float) -> tuple[float, float]:
@@ -177,6 +187,8 @@ class RaySplitter:
         self._node = ray.get_runtime_context().get_node_id()  # this process's
         self._prior = self._threads / settings.engine_threads  # a node's speed, unmeasured
         self.speeds = RunSpeeds()  # each node's, measured on this replica's requests
+        self._left: dict[str, set[_Task]] = {}  # node → this replica's tasks left to end there
+        self._lock = threading.Lock()
 
     def applies(self, pairs: int) -> bool:
         return pairs >= self.threshold and self.most > 1
@@ -203,11 +215,14 @@ class RaySplitter:
         alive = self.others()
         self.speeds.keep(alive)
         nodes = ranked(meshes, alive)[: min(self.most, n) - 1]
+        with self._lock:  # a node still on a task of ours left to end gets no other (nor
+            nodes = [node for node in nodes if node not in self._left]  # does another node)
         if not nodes:
             return here(columns)
         mine, *runs = split(columns, [1.0, *self.speeds.weights(nodes, self._prior)])
         sent = [(node, run) for node, run in zip(nodes, runs, strict=True) if len(run[0])]
-        pieces = [split(run, [1.0] * min(PIECES, len(run[0]))) for _, run in sent]
+        most = self.settings.split_pieces
+        pieces = [split(run, [1.0] * min(most, len(run[0]))) for _, run in sent]
         submitted = time.perf_counter()
         board = SentPieces([[len(p[0]) for p in run] for run in pieces], submitted)
         generators = [
@@ -215,17 +230,18 @@ class RaySplitter:
             for (node, run), cut in zip(sent, pieces, strict=True)
         ]
         seconds = [0.0] * len(sent)  # each task's, in its worker
+        tasks = [_Task(node) for node, _ in sent]
         for k, generator in enumerate(generators):
-            threading.Thread(target=_pull, args=(board, k, generator, seconds), daemon=True).start()
+            pull = (board, k, generator, seconds, functools.partial(self._end, tasks[k]))
+            threading.Thread(target=_pull, args=pull, daemon=True).start()
         try:
             found = [here(mine)] if len(mine[0]) else []  # while the tasks run
             searched = time.perf_counter()
             per_pair = (searched - submitted) / max(len(mine[0]), 1)
             taken, ended = _take_back(board, pieces, here, per_pair)
-        finally:
-            for run, generator in enumerate(generators):  # a run answered, or a failure here
-                if not board.complete(run) or board.handed_pairs[run] < len(sent[run][1][0]):
-                    ray.cancel(generator)  # idle at once for the next request
+        finally:  # every piece answered, or a failure here
+            for run, generator in enumerate(generators):
+                self._stop(tasks[run], generator, board.begun(run), len(pieces[run]))
         last = max(searched, ended)  # this process's last search
         arrived = max([last, *board.completed])
         measured = {}
@@ -254,6 +270,33 @@ class RaySplitter:
             "merge": time.perf_counter() - arrived,
         }
         return merged
+
+    def _stop(self, task: _Task, generator, begun: int, pieces: int) -> None:
+        """A task whose answers are no longer needed: cancelled once it has handed a piece
+        over (it runs its pieces then: it ends at the next one, see :class:`_Cancel`);
+        before that it may still be starting — Ray's cancel would interrupt the worker's
+        imports, and a node would stay cold while requests are shorter than its start — so
+        it is left to end on its own, and its node gets no other task of this replica's
+        meanwhile (a stalled node's work cannot pile up)."""
+        if begun == pieces:  # handed everything: it has ended, or is ending
+            return
+        if begun > 0:
+            ray.cancel(generator)
+            return
+        with self._lock:
+            if not task.ended:
+                task.left = True
+                self._left.setdefault(task.node, set()).add(task)
+
+    def _end(self, task: _Task) -> None:
+        """``task`` ended (its puller saw the last of it): its node is free again."""
+        with self._lock:
+            task.ended = True
+            if task.left:
+                left = self._left[task.node]
+                left.discard(task)
+                if not left:
+                    del self._left[task.node]
 
     def _send(self, node: str, run, pieces: int, meshes, kernel, hierarchy, precision):
         """Run ``run`` as ``pieces`` pieces in a task on ``node``: its answers' refs."""
