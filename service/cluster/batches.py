@@ -101,6 +101,7 @@ class _Cancel:
 
     def __init__(self) -> None:
         self.requested = False
+        self._installed = False
         self._previous = None
 
     def _note(self, signum, frame) -> None:
@@ -109,11 +110,12 @@ class _Cancel:
     def __enter__(self) -> _Cancel:
         if threading.current_thread() is threading.main_thread():
             self._previous = signal.signal(signal.SIGINT, self._note)
+            self._installed = True
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+        if self._installed:  # the previous handler may be None (not set from Python)
+            signal.signal(signal.SIGINT, self._previous or signal.SIG_DFL)
 
 
 def _pull(board: SentPieces, run: int, pieces, seconds: list, ended: Callable[[], None]):

@@ -39,3 +39,28 @@ def test_different_meshes_spread_over_the_nodes(ranked):
     first = collections.Counter(ranked([f"mesh-{m}"], nodes)[0] for m in range(4000))
     assert set(first) == set(nodes)
     assert all(800 < count < 1200 for count in first.values()), first
+
+
+def test_a_cancel_while_a_task_runs_is_noted_not_raised():
+    """Ray cancels a running task by simulating SIGINT in its worker's main thread
+    (``_thread.interrupt_main``): inside :class:`_Cancel` that only sets ``requested`` —
+    no ``KeyboardInterrupt`` in the middle of a kernel's dispatch — and the handler that
+    was there before is back afterwards."""
+    import _thread
+    import signal
+
+    from service.cluster.batches import _Cancel
+
+    before = signal.getsignal(signal.SIGINT)
+    with _Cancel() as cancel:
+        assert not cancel.requested
+        _thread.interrupt_main()
+        for _ in range(1000):  # the handler runs between bytecodes of this thread
+            if cancel.requested:
+                break
+        assert cancel.requested
+    assert signal.getsignal(signal.SIGINT) is before
+    with pytest.raises(KeyboardInterrupt):  # Python's own handler again
+        _thread.interrupt_main()
+        for _ in range(1000):
+            pass

@@ -52,6 +52,30 @@ def _query(mesh_ids, n: int, seed: int) -> dict:
     }
 
 
+OPTIONS = ("hybrid", True, "float64")  # kernel, hierarchy, precision of the splitter tests
+
+
+def _as_a_replica(settings, query: dict):
+    """What a replica holds for ``query``, in this process: ``(its store — close it — the
+    request's columns as the service reads them (unit quaternions), here(run): the search
+    of a run with its banks)``."""
+    from service.banks import BankCache
+    from service.models import ColumnarQuery
+    from service.search import find
+    from service.store import open_store
+
+    store = open_store(settings)
+    banks = BankCache(store)
+    valid = ColumnarQuery.model_validate(query)
+    columns = tuple(getattr(valid, k) for k in ("a", "position_a", "orientation_a", "b"))
+    columns += (valid.position_b, valid.orientation_b)
+
+    def here(run: tuple) -> dict:
+        return find(query["meshes"], run, *OPTIONS, 1, store, banks)
+
+    return store, columns, here
+
+
 def _same(found, expected) -> None:
     for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
         np.testing.assert_array_equal(getattr(found, name), getattr(expected, name), name)
@@ -229,30 +253,17 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     taken back costs nothing, and is not logged.)"""
     from ray.util.state import list_tasks
 
-    from service.banks import BankCache
     from service.cluster.batches import RaySplitter, ranked
-    from service.models import ColumnarQuery
-    from service.search import find, split
-    from service.store import open_store
+    from service.search import split
 
     cluster, url, settings = ray_cluster
     with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
         ids = [_upload(c, shapes.box()) for c in (client, alone)]
         query = _query(ids[:1], 2 * settings.split_pairs, seed=13)
         expected = alone.find_contacts(**query)
-    store = open_store(settings)  # this process's, as a replica's
-    banks = BankCache(store)
+    store, columns, here = _as_a_replica(settings, query)
     unwritable = settings.model_copy(update={"data_dir": Path("/proc/version/mrdem")})
     splitter = RaySplitter(unwritable, 1, 2, 0.5)  # its tasks get the broken settings
-    valid = ColumnarQuery.model_validate(query)  # as the service reads it (unit quaternions)
-    columns = tuple(getattr(valid, k) for k in ("a", "position_a", "orientation_a", "b"))
-    columns += (valid.position_b, valid.orientation_b)
-
-    options = ("hybrid", True, "float64")
-
-    def here(run: tuple) -> dict:
-        return find(ids[:1], run, *options, 1, store, banks)
-
     address = f"http://{cluster.webui_url}"
     failed = [("func_or_class_name", "=", "_search_pieces"), ("state", "=", "FAILED")]
     before = {t.task_id for t in list_tasks(address=address, filters=failed)}
@@ -267,7 +278,7 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     node = ranked(ids[:1], splitter.others())[0]  # where its task goes
     try:
         with caplog.at_level(logging.WARNING, logger="mrdem.cluster"):
-            found = splitter.find(ids[:1], columns, *options, here=long_here)
+            found = splitter.find(ids[:1], columns, *OPTIONS, here=long_here)
     finally:
         store.close()
     for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
@@ -285,11 +296,7 @@ def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
     replica, done with its fifth, takes back the pieces the node has not begun — the answer
     is still the embedded service's, ``Server-Timing`` counts the time taken back, and the
     node's measured speed falls."""
-    from service.banks import BankCache
     from service.cluster.batches import RaySplitter, ranked
-    from service.models import ColumnarQuery
-    from service.search import find
-    from service.store import open_store
 
     _, url, settings = ray_cluster
     with (
@@ -299,23 +306,13 @@ def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
         ids = [_upload(c, shapes.icosphere(3)) for c in (client, alone)]
         query = near_pairs(ids[:1], 4 * settings.split_pairs, seed=14)
         expected = alone.find_contacts(**query)
-    store = open_store(settings)
-    banks = BankCache(store)
-    valid = ColumnarQuery.model_validate(query)
-    columns = tuple(getattr(valid, k) for k in ("a", "position_a", "orientation_a", "b"))
-    columns += (valid.position_b, valid.orientation_b)
-
-    options = ("hybrid", True, "float64")
-
-    def here(run: tuple) -> dict:
-        return find(ids[:1], run, *options, 1, store, banks)
-
+    store, columns, here = _as_a_replica(settings, query)
     splitter = RaySplitter(settings, 1, 2, 0.5)
     node = ranked(ids[:1], splitter.others())[0]
     try:  # first requests warm the banks here and the node's worker, until it searches
         deadline = time.monotonic() + 90
         while (
-            splitter.find(ids[:1], columns, *options, here=here).get("timing", {}).get("task", 0.0)
+            splitter.find(ids[:1], columns, *OPTIONS, here=here).get("timing", {}).get("task", 0.0)
             == 0.0
         ):
             assert time.monotonic() < deadline, "the node never searched a piece"
@@ -323,7 +320,7 @@ def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
             splitter.speeds.update((1, 1.0), {node: (4, 1.0)}, 1.0)
         (fast,) = splitter.speeds.weights([node], 1.0)
         assert fast == pytest.approx(4.0, rel=1e-3)
-        found = splitter.find(ids[:1], columns, *options, here=here)
+        found = splitter.find(ids[:1], columns, *OPTIONS, here=here)
     finally:
         store.close()
     for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
@@ -338,26 +335,14 @@ def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded)
     other task of that replica's: the request is searched in the replica alone (no other
     node takes the run: the trees stay where the ranking put them); once it ended, the
     node has runs again."""
-    from service.banks import BankCache
     from service.cluster.batches import RaySplitter, _Task, ranked
-    from service.models import ColumnarQuery
-    from service.search import find
-    from service.store import open_store
 
     _, url, settings = ray_cluster
     with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
         ids = [_upload(c, shapes.box()) for c in (client, alone)]
         query = _query(ids[:1], 2 * settings.split_pairs, seed=15)
         expected = alone.find_contacts(**query)
-    store = open_store(settings)
-    banks = BankCache(store)
-    valid = ColumnarQuery.model_validate(query)
-    columns = tuple(getattr(valid, k) for k in ("a", "position_a", "orientation_a", "b"))
-    columns += (valid.position_b, valid.orientation_b)
-
-    def here(run: tuple) -> dict:
-        return find(ids[:1], run, "hybrid", True, "float64", 1, store, banks)
-
+    store, columns, here = _as_a_replica(settings, query)
     splitter = RaySplitter(settings, 1, 2, 0.5)
     node = ranked(ids[:1], splitter.others())[0]
     ended = _Task(node)
@@ -367,12 +352,12 @@ def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded)
     left = _Task(node)
     splitter._stop(left, None, 0, 8)  # as a request whose task handed nothing over
     try:
-        found = splitter.find(ids[:1], columns, "hybrid", True, "float64", here=here)
+        found = splitter.find(ids[:1], columns, *OPTIONS, here=here)
         assert "timing" not in found  # not split: searched here alone
         for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
             np.testing.assert_array_equal(found[name], getattr(expected, name), name)
         splitter._end(left)  # its puller saw it end
-        found = splitter.find(ids[:1], columns, "hybrid", True, "float64", here=here)
+        found = splitter.find(ids[:1], columns, *OPTIONS, here=here)
         assert "timing" in found  # split again
     finally:
         store.close()
