@@ -16,7 +16,8 @@ is on, once it has been at it half as long again as the replica would be for the
 piece (:class:`service.search.SentPieces`). So a request ends when its pieces do, whatever
 happens to a node meanwhile (a neighbour busy on it, a cold worker, a stall), and a slow
 node loses its share within the request, not only over the next ones. Each piece costs a
-hand-over: on the 2-vCPU VM, 8 pieces took the split from 1.59x to 1.33x (BENCHMARKS.md).
+hand-over: on the 2-vCPU VM the split gave 1.33x and 1.44x with 8 pieces, 1.59x and 1.48x
+with 2 (BENCHMARKS.md).
 A task no longer needed is cancelled once it has handed a piece over (it stops at its next
 one); one that has not may still be starting, and is left to end — its node gets no other
 task of this replica's until it has (:meth:`RaySplitter._stop`).
