@@ -76,6 +76,29 @@ def _as_a_replica(settings, query: dict):
     return store, columns, here
 
 
+def _search_tasks(address: str, which, seconds: float = 20.0) -> list:
+    """The contacts tasks (``_search_pieces``) that ``which(tasks)`` picks, as soon as it
+    picks any (the state API hears of tasks a moment later), or none after ``seconds``."""
+    from ray.util.state import list_tasks
+
+    deadline = time.monotonic() + seconds
+    while True:
+        tasks = list_tasks(
+            address=address,
+            filters=[("func_or_class_name", "=", "_search_pieces")],
+            detail=True,
+            limit=10_000,
+        )
+        picked = which(tasks)
+        if picked or time.monotonic() >= deadline:
+            return picked
+        time.sleep(0.2)
+
+
+def _failed(tasks: list) -> list:
+    return [t for t in tasks if t.state == "FAILED"]
+
+
 def _same(found, expected) -> None:
     for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
         np.testing.assert_array_equal(getattr(found, name), getattr(expected, name), name)
@@ -125,7 +148,7 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
     its banks in memory; a random node would be the same one time in two) — and answers
     what the embedded service answers; its ``Server-Timing`` names the split's parts."""
     import ray
-    from ray.util.state import list_actors, list_tasks
+    from ray.util.state import list_actors
 
     from service.cluster.batches import ranked
 
@@ -159,17 +182,10 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
             parts = ["search", "submit", "here", "taken", "task", "wait", "merge", "encode"]
             assert list(timing) == parts
             assert timing["search"] >= timing["here"] + timing["taken"] + timing["wait"]
-            deadline = time.monotonic() + 20
-            while True:  # the state API hears of ended tasks a moment later
-                tasks = list_tasks(
-                    address=address,
-                    filters=[("func_or_class_name", "=", "_search_pieces")],
-                    detail=True,
-                )
-                new = [t for t in tasks if (t.creation_time_ms or 0) >= sent]
-                if new or time.monotonic() > deadline:
-                    break
-                time.sleep(0.2)
+            new = _search_tasks(  # its task, ended or not
+                address,
+                lambda ts, since=sent: [t for t in ts if (t.creation_time_ms or 0) >= since],
+            )
             assert len(new) == 1, new  # one run here, one task
             replica = response.headers["X-Mrdem-Replica"]
             remote.setdefault(replica, []).append(new[0].node_id)
@@ -224,18 +240,9 @@ def test_a_big_batch_whose_task_node_dies_is_answered_in_full(ray_cluster, embed
     assert not request.is_alive() and "found" in answers, "the request never answered"
     _same(answers["found"], expected)
     address = f"http://{cluster.webui_url}"
-    deadline = time.monotonic() + 20
-    while True:  # the state API hears of ended tasks a moment later
-        tasks = list_tasks(
-            address=address,
-            filters=[("func_or_class_name", "=", "_search_pieces")],
-            detail=True,
-            limit=10_000,
-        )
-        failed = [t for t in tasks if t.node_id == node.node_id and t.state == "FAILED"]
-        if failed or time.monotonic() > deadline:
-            break
-        time.sleep(0.2)
+    failed = _search_tasks(
+        address, lambda ts: [t for t in ts if t.node_id == node.node_id and t.state == "FAILED"]
+    )
     assert len(failed) == 1, "no task failed with its node"
     time.sleep(1.0)  # … and of a second attempt, were there one
     attempts = list_tasks(address=address, filters=[("task_id", "=", failed[0].task_id)])
@@ -251,7 +258,6 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     answer is still the embedded service's, whole, and the log names the node. (The
     replica's own run ends once the task has failed: a task failing after every piece was
     taken back costs nothing, and is not logged.)"""
-    from ray.util.state import list_tasks
 
     from service.cluster.batches import RaySplitter, ranked
     from service.search import split
@@ -265,14 +271,13 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     unwritable = settings.model_copy(update={"data_dir": Path("/proc/version/mrdem")})
     splitter = RaySplitter(unwritable, 1, 2, 0.5)  # its tasks get the broken settings
     address = f"http://{cluster.webui_url}"
-    failed = [("func_or_class_name", "=", "_search_pieces"), ("state", "=", "FAILED")]
-    before = {t.task_id for t in list_tasks(address=address, filters=failed)}
+    before = {t.task_id for t in _search_tasks(address, _failed, seconds=0.0)}
 
     def long_here(run: tuple) -> dict:  # a replica's run that outlasts the task's failure
-        deadline = time.monotonic() + 60
-        while not {t.task_id for t in list_tasks(address=address, filters=failed)} - before:
-            assert time.monotonic() < deadline, "the task never failed"
-            time.sleep(0.1)
+        new = _search_tasks(
+            address, lambda ts: [t for t in _failed(ts) if t.task_id not in before], 60.0
+        )
+        assert new, "the task never failed"
         return here(run)
 
     node = ranked(ids[:1], splitter.others())[0]  # where its task goes
