@@ -192,7 +192,7 @@ class SentPieces:
             if sum(self._unanswered) and timeout > 0:
                 self._changed.wait(min(timeout, 1.0))
 
-    def begun(self, run: int) -> int:
+    def handed_over(self, run: int) -> int:
         """Pieces of run ``run`` its place has handed over (so far: it goes front to back)."""
         return self._front[run]
 

@@ -244,7 +244,7 @@ class RaySplitter:
             taken, ended = _take_back(board, pieces, here, per_pair)
         finally:  # every piece answered, or a failure here
             for run, generator in enumerate(generators):
-                self._stop(tasks[run], generator, board.begun(run), len(pieces[run]))
+                self._stop(tasks[run], generator, board.handed_over(run), len(pieces[run]))
         last = max(searched, ended)  # this process's last search
         arrived = max([last, *board.completed])
         measured = {}
