@@ -20,7 +20,10 @@ hand-over: on the 2-vCPU VM the split gave 1.33x and 1.44x with 8 pieces, 1.59x 
 with 2 (BENCHMARKS.md).
 A task no longer needed is cancelled once it has handed a piece over (it stops at its next
 one); one that has not may still be starting, and is left to end — its node gets no other
-task of this replica's until it has (:meth:`RaySplitter._stop`).
+task of this replica's until it has (:meth:`RaySplitter._stop`). A node gets runs only
+once a worker is readied there: each replica sends every alive node, when it starts and
+when a node first appears, a task that opens the store and loads the kernels
+(:meth:`RaySplitter.ready`); its worker goes back to the node's pool for the next task.
 
 The nodes for a request's meshes are ranked by rendezvous hashing: every replica sends the
 same meshes to the same nodes while they are alive (their trees on disk there, their banks
@@ -51,6 +54,8 @@ import ray
 from ray.exceptions import RayError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
+import engine
+
 from ..banks import BankCache
 from ..search import RunSpeeds, SentPieces, find, merge, split
 from ..settings import Settings
@@ -71,6 +76,17 @@ def _worker_store(settings: Settings) -> tuple[Store, BankCache]:
             store = open_store(settings)
             _WORKER[key] = (store, BankCache(store))
         return _WORKER[key]
+
+
+def _ready_worker(settings: Settings) -> float:
+    """A task that readies a worker of its node for the contacts tasks: the engine imported,
+    the store opened (first: it fails sooner), every kernel loaded (from the cache the
+    cluster shares, or compiled); its seconds. The worker goes back to its node's pool,
+    where the next task takes it."""
+    start = time.perf_counter()
+    _worker_store(settings)
+    engine.warmup(1)
+    return time.perf_counter() - start
 
 
 def _search_pieces(settings: Settings, meshes, run, pieces, kernel, hierarchy, precision, threads):
@@ -192,6 +208,10 @@ class RaySplitter:
         self.speeds = RunSpeeds()  # each node's, measured on this replica's requests
         self._left: dict[str, set[_Task]] = {}  # node → this replica's tasks left to end there
         self._lock = threading.Lock()
+        self._readier = ray.remote(_ready_worker)
+        self._readying: dict[str, ray.ObjectRef] = {}  # node → its readying task, running
+        self._ready: set[str] = set()  # nodes with a worker readied (or whose readying failed)
+        self.ready(self.others())  # from the start: the first requests find them ready
 
     def applies(self, pairs: int) -> bool:
         return pairs >= self.threshold and self.most > 1
@@ -203,6 +223,46 @@ class RaySplitter:
             for n in ray.nodes()
             if n["Alive"] and n["Resources"].get("CPU", 0) > 0 and n["NodeID"] != self._node
         ]
+
+    def ready(self, nodes: list[str], timeout: float = 0.0) -> list[str]:
+        """Of ``nodes`` (the alive ones, ids), those with a worker readied for this
+        replica's tasks (:func:`_ready_worker`), after at most ``timeout`` seconds; each
+        other node is sent a task that readies one (once). A fresh worker takes seconds to
+        start (imports, kernels, the store; a node without the kernels' cache compiles
+        them), in which a request's run sent there would be taken back: a node gets runs
+        once it is ready. A node whose readying failed is logged and counted as ready: its
+        tasks fail too, and their pieces are searched here, with a warning each."""
+        with self._lock:
+            alive = set(nodes)
+            self._ready &= alive  # nodes gone: a node joining again has a new id
+            for node in [m for m in self._readying if m not in alive]:
+                del self._readying[node]
+            for node in nodes:
+                if node not in self._ready and node not in self._readying:
+                    self._readying[node] = self._send_ready(node)
+            waiting = {ref: node for node, ref in self._readying.items()}
+        ended = []
+        if waiting:
+            done, _ = ray.wait(list(waiting), num_returns=len(waiting), timeout=timeout)
+            with self._lock:  # each readying's end taken once (requests call this at once)
+                for ref in done:
+                    node = waiting[ref]
+                    if self._readying.get(node) == ref:
+                        del self._readying[node]
+                        self._ready.add(node)
+                        ended.append((node, ref))
+        for node, ref in ended:
+            try:
+                log.info("node %s ready in %.1f s", node, ray.get(ref))
+            except RayError as error:
+                log.warning(
+                    "readying a worker on node %s failed; its runs are sent still (and"
+                    " searched here when they fail): %s",
+                    node,
+                    error,
+                )
+        with self._lock:
+            return [node for node in nodes if node in self._ready]
 
     def find(
         self, meshes, columns, kernel, hierarchy, precision, here: Callable[[tuple], dict]
@@ -217,9 +277,11 @@ class RaySplitter:
         n = len(columns[0])
         alive = self.others()
         self.speeds.keep(alive)
+        ready = set(self.ready(alive))
         nodes = ranked(meshes, alive)[: min(self.most, n) - 1]
-        with self._lock:  # a node still on a task of ours left to end gets no other (nor
-            nodes = [node for node in nodes if node not in self._left]  # does another node)
+        # a node not ready yet, or still on a task of ours left to end, gets no run (nor
+        with self._lock:  # does another node take it: the trees stay where they ranked)
+            nodes = [m for m in nodes if m in ready and m not in self._left]
         if not nodes:
             return here(columns)
         mine, *runs = split(columns, [1.0, *self.speeds.weights(nodes, self._prior)])
@@ -300,6 +362,14 @@ class RaySplitter:
                 left.discard(task)
                 if not left:
                     del self._left[task.node]
+
+    def _send_ready(self, node: str) -> ray.ObjectRef:
+        """A task readying a worker on ``node`` (there only: a node without room queues it)."""
+        strategy = NodeAffinitySchedulingStrategy(node, soft=False)
+        task = self._readier.options(
+            num_cpus=self.cpus, scheduling_strategy=strategy, max_retries=0
+        )
+        return task.remote(self._task_settings)
 
     def _send(self, node: str, run, pieces: int, meshes, kernel, hierarchy, precision):
         """Run ``run`` as ``pieces`` pieces in a task on ``node``: its answers' refs."""

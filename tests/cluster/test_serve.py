@@ -20,7 +20,7 @@ import pytest
 from harness import InProcessService, near_pairs, run_readme_loop, server_timing
 from servers import descendants, until_none_titled, until_titled
 
-from clients import Client
+from clients import Client, codec
 from engine import shapes
 
 pytestmark = pytest.mark.cluster
@@ -76,16 +76,17 @@ def _as_a_replica(settings, query: dict):
     return store, columns, here
 
 
-def _search_tasks(address: str, which, seconds: float = 20.0) -> list:
-    """The contacts tasks (``_search_pieces``) that ``which(tasks)`` picks, as soon as it
-    picks any (the state API hears of tasks a moment later), or none after ``seconds``."""
+def _search_tasks(address: str, which, seconds: float = 20.0, name: str = "_search_pieces") -> list:
+    """The tasks of function ``name`` (the contacts tasks) that ``which(tasks)`` picks, as
+    soon as it picks any (the state API hears of tasks a moment later), or none after
+    ``seconds``."""
     from ray.util.state import list_tasks
 
     deadline = time.monotonic() + seconds
     while True:
         tasks = list_tasks(
             address=address,
-            filters=[("func_or_class_name", "=", "_search_pieces")],
+            filters=[("func_or_class_name", "=", name)],
             detail=True,
             limit=10_000,
         )
@@ -171,9 +172,14 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
         }
         for _ in range(16):
             sent = time.time() * 1000 - 50  # ms, as the state API's times
-            response = httpx.post(f"{url}/v1/contacts", json=_jsonable(query), timeout=120)
+            response = httpx.post(  # msgpack: JSON's encoding took a second of each request
+                f"{url}/v1/contacts",
+                content=codec.encode(query, codec.MSGPACK),
+                headers={"content-type": codec.MSGPACK, "accept": codec.MSGPACK},
+                timeout=120,
+            )
             assert response.status_code == 200, response.text
-            answer = response.json()
+            answer = codec.decode(response.content, response.headers["content-type"])
             for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
                 np.testing.assert_array_equal(answer[name], getattr(expected, name), name)
             timing = server_timing(response)  # where the time went, the split's parts too
@@ -280,7 +286,15 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
         assert new, "the task never failed"
         return here(run)
 
+    # its nodes' readying fails as its tasks will (it opens the store), logged; counted as
+    with caplog.at_level(logging.WARNING, logger="mrdem.cluster"):  # ready
+        assert splitter.ready(splitter.others(), timeout=60) == splitter.others()
+    failed = [r.getMessage() for r in caplog.records if r.name == "mrdem.cluster"]
+    assert len(failed) == len(splitter.others()), failed
+    for node in splitter.others():
+        assert any(f"readying a worker on node {node} failed" in m for m in failed), failed
     node = ranked(ids[:1], splitter.others())[0]  # where its task goes
+    caplog.clear()
     try:
         with caplog.at_level(logging.WARNING, logger="mrdem.cluster"):
             found = splitter.find(ids[:1], columns, *OPTIONS, here=long_here)
@@ -313,6 +327,7 @@ def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
         expected = alone.find_contacts(**query)
     store, columns, here = _as_a_replica(settings, query)
     splitter = RaySplitter(settings, 1, 2, 0.5)
+    splitter.ready(splitter.others(), timeout=60)
     node = ranked(ids[:1], splitter.others())[0]
     try:  # first requests warm the banks here and the node's worker, until it searches
         deadline = time.monotonic() + 90
@@ -334,6 +349,77 @@ def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
     assert splitter.speeds.weights([node], 1.0)[0] < fast
 
 
+def test_a_node_gets_runs_once_a_worker_is_readied_there(
+    ray_cluster, embedded, tmp_path, monkeypatch
+):
+    """A splitter sends each alive node a task readying a worker (a fresh one takes seconds:
+    imports, kernels, the store) and sends a node no run before that task has ended: until
+    then its requests are searched here alone, whole; after, they are split again."""
+    from service.cluster import batches
+
+    _, url, settings = ray_cluster
+    with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
+        ids = [_upload(c, shapes.box()) for c in (client, alone)]
+        query = _query(ids[:1], 2 * settings.split_pairs, seed=16)
+        expected = alone.find_contacts(**query)
+    go = tmp_path / "go"
+
+    def slow_ready(task_settings) -> float:  # a local function: Ray sends it by value
+        while not go.exists():
+            time.sleep(0.05)
+        return 0.0
+
+    monkeypatch.setattr(batches, "_ready_worker", slow_ready)
+    store, columns, here = _as_a_replica(settings, query)
+    splitter = batches.RaySplitter(settings, 1, 2, 0.5)
+    try:
+        assert splitter.ready(splitter.others(), timeout=1.0) == []
+        found = splitter.find(ids[:1], columns, *OPTIONS, here=here)
+        assert "timing" not in found  # not split: searched here alone
+        for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
+            np.testing.assert_array_equal(found[name], getattr(expected, name), name)
+        go.touch()
+        assert splitter.ready(splitter.others(), timeout=60) == splitter.others()
+        found = splitter.find(ids[:1], columns, *OPTIONS, here=here)
+        assert "timing" in found  # split
+        for name in ("offsets", "points", "normals", "overlaps", "pair_offsets", "pairs"):
+            np.testing.assert_array_equal(found[name], getattr(expected, name), name)
+    finally:
+        go.touch()
+        store.close()
+
+
+def test_a_run_s_task_runs_in_a_worker_readied_on_its_node(ray_cluster, embedded):
+    """The readying task's worker goes back to its node's pool and the run's task takes it:
+    no fresh worker starts for a request."""
+    from service.cluster.batches import RaySplitter, ranked
+
+    cluster, url, settings = ray_cluster
+    with Client(url) as client:
+        ids = [_upload(client, shapes.box())]
+    query = _query(ids, 2 * settings.split_pairs, seed=17)
+    store, columns, here = _as_a_replica(settings, query)
+    splitter = RaySplitter(settings, 1, 2, 0.5)
+    assert splitter.ready(splitter.others(), timeout=60) == splitter.others()
+    node = ranked(ids, splitter.others())[0]
+    address = f"http://{cluster.webui_url}"
+    sent = time.time() * 1000 - 50  # ms, as the state API's times
+    try:
+        assert "timing" in splitter.find(ids, columns, *OPTIONS, here=here)
+    finally:
+        store.close()
+    (task,) = _search_tasks(
+        address, lambda ts: [t for t in ts if (t.creation_time_ms or 0) >= sent and t.worker_pid]
+    )
+    assert task.node_id == node
+    readied = _search_tasks(
+        address,
+        lambda ts: [t.worker_pid for t in ts if t.node_id == node and t.state == "FINISHED"],
+        name="_ready_worker",
+    )
+    assert task.worker_pid in readied, (task.worker_pid, readied)
+
+
 def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded):
     """A task that had handed nothing over when its request ended (a cold worker starting,
     a stalled node) is not cancelled but left to end, and until it has, its node gets no
@@ -349,6 +435,7 @@ def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded)
         expected = alone.find_contacts(**query)
     store, columns, here = _as_a_replica(settings, query)
     splitter = RaySplitter(settings, 1, 2, 0.5)
+    splitter.ready(splitter.others(), timeout=60)
     node = ranked(ids[:1], splitter.others())[0]
     ended = _Task(node)
     splitter._end(ended)  # a task that ended before its request decided is not left
