@@ -227,23 +227,29 @@ class _Timings(httpx.HTTPTransport):
 
 def _warm(client: Client, mesh: str, query: dict, timings: _Timings, splits: bool):
     """Requests until the app is warm: one, or, where it ``splits``, until a task has
-    searched (a task that handed nothing over is left to end, and its node gets no other
-    meanwhile: a cold worker's start takes a few requests); the last answer."""
+    searched (a node gets runs once a worker is readied there, and none while a task of
+    its is left to end); ``(the last answer, the requests sent, their seconds)``."""
+    start = time.perf_counter()
     deadline = time.monotonic() + 180
+    requests = 0
     while True:
         found = client.find_contacts([mesh], **query)
+        requests += 1
         if not splits or timings.seen[-1].get("task", 0.0) > 0:
-            return found
+            return found, requests, time.perf_counter() - start
         if time.monotonic() > deadline:
             raise RuntimeError("no task searched a piece within 180 s")
 
 
-def big_batch(url: str, pairs: int, repeats: int, splits: bool) -> dict:
+def big_batch(url: str, pairs: int, repeats: int, splits: bool, settle: float = 0.0) -> dict:
+    """The big batch, ``repeats`` times after the requests that warm it, which are sent
+    ``settle`` seconds after the mesh is built (a deployment up for a while)."""
     timings = _Timings()
     with Client(url, timeout=600, transport=timings) as client:
         mesh = client.upload_mesh((MESH.vertices, MESH.faces), epsilon=0.01)
         query = columns(pairs, seed=5)
-        found = _warm(client, mesh, query, timings, splits)  # trees and banks where it runs
+        time.sleep(settle)
+        found, warm_requests, warm_seconds = _warm(client, mesh, query, timings, splits)
         seconds, searches = [], []
         del timings.seen[:]
         for _ in range(repeats):
@@ -254,6 +260,8 @@ def big_batch(url: str, pairs: int, repeats: int, splits: bool) -> dict:
     return {
         "pairs": pairs,
         "contacts": int(found.offsets[-1]),
+        "warm_requests": warm_requests,  # until one was answered (split: a task searched)
+        "warm_seconds": warm_seconds,
         "seconds": seconds,
         "median_s": float(np.median(seconds)),
         "search_seconds": searches,
@@ -480,6 +488,12 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=10_000, help="pairs of the big batch")
     parser.add_argument("--repeats", type=int, default=5, help="big-batch requests measured")
     parser.add_argument(
+        "--settle",
+        type=float,
+        default=0.0,
+        help="seconds between the big batch's mesh built and its first request",
+    )
+    parser.add_argument(
         "--only",
         choices=("serve", "batch", "slow"),
         help="only the Serve measures (1, 2), the batch (3), or the slowed node (4)",
@@ -576,7 +590,9 @@ def main() -> None:
                 url = cluster.deploy(
                     1, 0.1, task_cpus=0.9, split_pairs=min(args.pairs, 2000), split_chunks=nodes
                 )
-                out["batch"][nodes] = big_batch(url, args.pairs, args.repeats, splits=nodes > 1)
+                out["batch"][nodes] = big_batch(
+                    url, args.pairs, args.repeats, splits=nodes > 1, settle=args.settle
+                )
                 print(f"{args.pairs:,}-pair batch, {nodes} node(s): {out['batch'][nodes]}")
             finally:
                 cluster.close()
@@ -661,6 +677,11 @@ def summarise_batch(out: dict, pairs: int) -> None:
             for name, ms in out["batch"][nodes]["server_timing_median_ms"].items()
         )
         print(f"{pairs:,}-pair batch, {nodes} node(s), Server-Timing medians (ms): {parts}")
+    two = out["batch"][2]
+    print(
+        f"{pairs:,}-pair batch, 2 nodes: a task searched in the request {two['warm_requests']}"
+        f" sent, {two['warm_seconds']:.2f} s after the first"
+    )
     if "batch_paired" in out:
         paired = out["batch_paired"]
         for key, what in (("median_s", "request"), ("search_median_s", "search")):
