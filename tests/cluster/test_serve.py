@@ -77,9 +77,9 @@ def _as_a_replica(settings, query: dict):
 
 
 def _search_tasks(address: str, which, seconds: float = 20.0, name: str = "_search_pieces") -> list:
-    """The tasks of function ``name`` (the contacts tasks) that ``which(tasks)`` picks, as
-    soon as it picks any (the state API hears of tasks a moment later), or none after
-    ``seconds``."""
+    """The tasks of function ``name`` (by default the contacts tasks) that ``which(tasks)``
+    picks, as soon as it picks any (the state API hears of tasks a moment later), or none
+    after ``seconds``."""
     from ray.util.state import list_tasks
 
     deadline = time.monotonic() + seconds
@@ -412,12 +412,16 @@ def test_a_run_s_task_runs_in_a_worker_readied_on_its_node(ray_cluster, embedded
         address, lambda ts: [t for t in ts if (t.creation_time_ms or 0) >= sent and t.worker_pid]
     )
     assert task.node_id == node
-    readied = _search_tasks(
+    readied = _search_tasks(  # (the state API may hear of it a moment later)
         address,
-        lambda ts: [t.worker_pid for t in ts if t.node_id == node and t.state == "FINISHED"],
+        lambda ts: [
+            t
+            for t in ts
+            if t.node_id == node and t.state == "FINISHED" and t.worker_pid == task.worker_pid
+        ],
         name="_ready_worker",
     )
-    assert task.worker_pid in readied, (task.worker_pid, readied)
+    assert readied, f"no readying ran in the worker {task.worker_pid} of the run's task"
 
 
 def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded):
