@@ -7,6 +7,8 @@ and it rebuilds the scene from the last stored state — what a restart of the e
 service does.
 
 An actor is a process: a live scene costs one (with its kernels loaded) while it is used.
+So one is made only for a scene in the store (an unknown id is a 404 from the replica), and
+one whose scene is gone from the store leaves after its 404.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from collections import OrderedDict
 import ray
 from ray.exceptions import ActorDiedError, ActorUnavailableError, RayTaskError
 
+from ..errors import NotFound
 from ..scenes import LiveScenes
 from ..settings import Settings
 from ..store import Store, open_store
@@ -27,6 +30,7 @@ __all__ = ["ActorScenes", "SceneActor", "actor_name"]
 
 NAMESPACE = "mrdem"
 HANDLES = 4096  # scene actors' handles a replica keeps (least recently used dropped)
+LEAVE_AFTER = 0.5  # seconds an actor whose scene is gone waits to leave (its 404 sent)
 _GONE = (ActorDiedError, ActorUnavailableError)
 
 
@@ -47,19 +51,27 @@ class SceneActor:
         if idle > 0:
             threading.Thread(target=self._leave_when_idle, daemon=True).start()
 
+    def _leave(self) -> None:
+        self.store.close()
+        ray.kill(ray.get_runtime_context().current_actor, no_restart=True)
+
     def _leave_when_idle(self) -> None:
         while True:
             time.sleep(min(self.idle, 5.0))
             if time.monotonic() - self.last > self.idle:
-                self.store.close()
-                ray.kill(ray.get_runtime_context().current_actor, no_restart=True)
+                self._leave()
                 return
 
     def call(self, method: str, *args):
-        """``LiveScenes.<method>(*args)`` (summary, put_state, step)."""
+        """``LiveScenes.<method>(*args)`` (summary, put_state, step). An actor whose scene
+        is not there (deleted meanwhile: 404) leaves right after answering: it is there for
+        that scene alone."""
         self.last = time.monotonic()
         try:
             return getattr(self.scenes, method)(*args)
+        except NotFound:
+            threading.Timer(LEAVE_AFTER, self._leave).start()  # its answer sent first
+            raise
         finally:
             self.last = time.monotonic()
 
@@ -86,14 +98,30 @@ class ActorScenes:
         self.recreate_for = 120.0  # seconds a call goes on recreating a scene's dead actor
 
     def actor(self, owner: str, scene_id: str):
-        """The scene's actor (the handle this replica holds; else found or created by
-        name)."""
+        """The scene's actor (the handle this replica holds; else found by name, or created
+        for a scene in the store — :class:`NotFound` for one that is not: an actor is a
+        process, and would stay until idle for ``MRDEM_SCENE_IDLE`` seconds)."""
         name = actor_name(owner, scene_id)
         with self._lock:
             if name in self._handles:
                 self._handles.move_to_end(name)
                 return self._handles[name]
-        handle = self._remote.options(
+        try:
+            handle = ray.get_actor(name, namespace=NAMESPACE)
+        except ValueError:  # none alive: created, if there is such a scene
+            if self.store.scene_version(owner, scene_id) is None:
+                raise NotFound(f"no scene {scene_id!r}") from None
+            handle = self._create(name)
+        with self._lock:
+            self._handles[name] = handle
+            while len(self._handles) > HANDLES:
+                self._handles.popitem(last=False)
+        return handle
+
+    def _create(self, name: str):
+        """The actor named ``name``, created (or the one another replica created just
+        before)."""
+        return self._remote.options(
             name=name,
             namespace=NAMESPACE,
             get_if_exists=True,
@@ -101,11 +129,6 @@ class ActorScenes:
             num_cpus=self.cpus,
             max_restarts=0,  # a dead actor is recreated by the next request, from the store
         ).remote(self.actor_settings, self.idle)
-        with self._lock:
-            self._handles[name] = handle
-            while len(self._handles) > HANDLES:
-                self._handles.popitem(last=False)
-        return handle
 
     def _forget(self, owner: str, scene_id: str) -> None:
         with self._lock:

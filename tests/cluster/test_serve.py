@@ -12,6 +12,7 @@ import os
 import signal
 import threading
 import time
+import uuid
 from pathlib import Path
 
 import httpx
@@ -553,6 +554,61 @@ def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embe
             tolerance = 1e-5 if part in ("positions", "orientations") else 1e-3
             np.testing.assert_allclose(got, expected, rtol=0, atol=tolerance, err_msg=part)
     cluster_nodes.add_node(num_cpus=2, object_store_memory=10**8)  # for what runs after
+
+
+def test_an_unknown_scene_is_answered_404_without_an_actor(ray_cluster):
+    """A scene id that is not in the store is answered 404 by the replica and starts no
+    actor: an actor is a process, and one made for an unknown id stayed until idle
+    (``MRDEM_SCENE_IDLE``, 600 s) — four such requests held every CPU this cluster's nodes
+    had for scenes, and the next one waited."""
+    from ray.util.state import list_actors
+
+    from service.cluster import actor_name
+
+    _, url, _ = ray_cluster
+    unknown = [uuid.uuid4().hex for _ in range(8)]
+    for scene_id in unknown:
+        for method, path, body in (("GET", "", None), ("POST", "/step", {"steps": 1})):
+            response = httpx.request(
+                method, f"{url}/v1/scenes/{scene_id}{path}", json=body, timeout=30
+            )
+            assert response.status_code == 404, response.text
+            problem = response.json()
+            assert problem["status"] == 404 and scene_id in problem["detail"], problem
+    names = {actor_name("", scene_id) for scene_id in unknown}
+    assert not [a for a in list_actors(limit=10_000) if a.name in names]
+
+
+def test_a_scene_actor_whose_scene_is_gone_leaves(ray_cluster):
+    """An actor whose scene was removed from the store behind it (another replica's
+    DELETE reached the store, not the actor) answers 404 and leaves, instead of staying
+    until idle."""
+    import ray
+
+    from service.cluster import NAMESPACE, actor_name
+    from service.store import open_store
+
+    _, url, settings = ray_cluster
+    with Client(url) as client:
+        mesh = _upload(client, shapes.icosphere(1))
+        scene = client.create_scene(bodies=[{"mesh": mesh, "position": [0, 0, 1]}], dt=1e-3)
+        scene.step(1)  # its actor made
+    actor = ray.get_actor(actor_name("", scene.id), namespace=NAMESPACE)
+    store = open_store(settings)
+    try:
+        assert store.delete_scene("", scene.id)
+    finally:
+        store.close()
+    response = httpx.post(f"{url}/v1/scenes/{scene.id}/step", json={"steps": 1}, timeout=30)
+    assert response.status_code == 404, response.text
+    deadline = time.monotonic() + 10
+    while True:
+        try:
+            ray.get(actor.node.remote(), timeout=5)
+        except ray.exceptions.RayActorError:
+            break  # gone
+        assert time.monotonic() < deadline, "the actor stayed"
+        time.sleep(0.2)
 
 
 def _kill_node(cluster, node) -> None:
