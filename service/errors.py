@@ -11,7 +11,8 @@ One hierarchy for the service layer::
      ├── PayloadTooLarge (413)    body over ``max_body_bytes``
      ├── UnsupportedMediaType (415)
      ├── Unprocessable (422)      well-formed but invalid: shapes, ranges, limits
-     └── NotReady (503)           kernels still compiling; a build out of memory
+     └── Unavailable (503)        not now (Retry-After): no room in a cluster for a scene's actor
+          └── NotReady            /readyz: kernels still compiling, the store not answering
 
 Engine errors (:class:`engine.EngineError`) are client errors by construction and become
 422 problems; request-validation errors too. Anything else is a bug: logged, answered with
@@ -97,8 +98,14 @@ class Unprocessable(ServiceError):
     status, title = 422, "Unprocessable Content"
 
 
-class NotReady(ServiceError):
+class Unavailable(ServiceError):
+    """503: the service cannot do it now (say when to come back: ``Retry-After``)."""
+
     status, title = 503, "Service Unavailable"
+
+
+class NotReady(Unavailable):
+    """503 of ``/readyz``: kernels compiling, the store not answering."""
 
 
 def invalid(error) -> Unprocessable:

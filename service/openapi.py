@@ -56,7 +56,8 @@ _PHRASES = {
     413: "The body is larger than the service takes (MRDEM_MAX_BODY_BYTES)",
     415: "The body's media type is not JSON, msgpack (or multipart where files are taken)",
     422: "The request is well formed but invalid: `errors` names each field and why",
-    503: "The service cannot do it now (kernels compiling, a build out of memory); try later",
+    503: "The service cannot do it now (kernels compiling, a build out of memory, no room in"
+    " a cluster for a scene's actor); try later (Retry-After)",
 }
 _RETRY_AFTER = {"Retry-After": {"description": "seconds to wait", "schema": {"type": "string"}}}
 #: where a contacts request's time went (W3C Server Timing: ``name;dur=milliseconds``)

@@ -102,6 +102,12 @@ class Settings(BaseSettings):
         1.0, gt=0, description="CPUs of each replica (its engine threads: this, rounded)"
     )
     scene_cpus: float = Field(1.0, gt=0, description="CPUs of each scene's actor")
+    scene_start: float = Field(
+        30.0,
+        gt=0,
+        description="seconds a scene's new actor may wait for CPUs in the cluster before the"
+        " request is answered 503",
+    )
     scene_idle: float = Field(
         600.0, ge=0, description="seconds a scene's actor waits for a request before it leaves"
     )

@@ -19,9 +19,9 @@ import time
 from collections import OrderedDict
 
 import ray
-from ray.exceptions import ActorDiedError, ActorUnavailableError, RayTaskError
+from ray.exceptions import ActorDiedError, ActorUnavailableError, GetTimeoutError, RayTaskError
 
-from ..errors import NotFound
+from ..errors import NotFound, Unavailable
 from ..scenes import LiveScenes
 from ..settings import Settings
 from ..store import Store, open_store
@@ -88,6 +88,7 @@ class ActorScenes:
         self, store: Store, settings: Settings, cpus: float = 1.0, idle: float = 600.0
     ) -> None:
         self.store, self.cpus, self.idle = store, cpus, idle
+        self.start = settings.scene_start  # seconds a new actor may wait for CPUs
         threads = max(1, int(round(cpus)))
         self.actor_settings = settings.model_copy(
             update={"engine_threads": threads, "engine_concurrency": 1, "warmup": False}
@@ -112,11 +113,28 @@ class ActorScenes:
             if self.store.scene_version(owner, scene_id) is None:
                 raise NotFound(f"no scene {scene_id!r}") from None
             handle = self._create(name)
+        self._started(handle)
         with self._lock:
             self._handles[name] = handle
             while len(self._handles) > HANDLES:
                 self._handles.popitem(last=False)
         return handle
+
+    def _started(self, handle) -> None:
+        """Once ``handle``'s actor runs; :class:`Unavailable` (503) when it has waited
+        ``MRDEM_SCENE_START`` seconds for CPUs (every CPU held by other scenes' actors,
+        replicas, tasks): the actor is withdrawn, not left to start later unasked."""
+        try:
+            ray.get(handle.node.remote(), timeout=self.start)
+        except GetTimeoutError:
+            ray.kill(handle, no_restart=True)
+            raise Unavailable(
+                f"no room in the cluster for the scene's actor ({self.cpus:g} CPUs) within"
+                f" {self.start:g} s: the cluster's CPUs are held by other scenes (an actor"
+                f" each, until idle for {self.idle:g} s), replicas and tasks; delete the"
+                " scenes you no longer step (DELETE /v1/scenes/{id}), or retry later",
+                {"Retry-After": "10"},
+            ) from None
 
     def _create(self, name: str):
         """The actor named ``name``, created (or the one another replica created just
@@ -138,8 +156,8 @@ class ActorScenes:
         deadline = time.monotonic() + self.recreate_for
         pause = 0.05
         while True:
-            actor = self.actor(owner, scene_id)
             try:
+                actor = self.actor(owner, scene_id)
                 return ray.get(actor.call.remote(method, owner, scene_id, *args))
             except RayTaskError as exc:  # the scene's own answer: 404, 409, 422 …
                 raise exc.cause from None

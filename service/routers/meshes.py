@@ -31,8 +31,8 @@ from ..errors import (
     BadRequest,
     Conflict,
     NotFound,
-    NotReady,
     ServiceError,
+    Unavailable,
     Unprocessable,
     invalid,
 )
@@ -335,7 +335,7 @@ def _failure(job: dict) -> ServiceError:
     """The problem answering an upload whose build failed while it waited."""
     where = job_location(job["id"])
     detail = f"{job['error']} (job {where})"
-    cls = {"engine": Unprocessable, "memory": NotReady, "cancelled": Conflict}.get(
+    cls = {"engine": Unprocessable, "memory": Unavailable, "cancelled": Conflict}.get(
         job["cause"], ServiceError
     )
     return cls(detail, job=where, cause=job["cause"])

@@ -95,7 +95,7 @@ async def create_scene(
 @router.get(
     "/{scene_id}",
     summary="A scene and its state",
-    **documented({200: (SceneSummary, "The scene")}, (401, 404, 406, 422)),
+    **documented({200: (SceneSummary, "The scene")}, (401, 404, 406, 422, 503)),
 )
 async def get_scene(scene_id: str, request: Request, owner: Owner, engine: Engine, scenes: Live):
     answer = await engine.run("load_scene", scenes.summary, owner, scene_id)
@@ -107,7 +107,7 @@ async def get_scene(scene_id: str, request: Request, owner: Owner, engine: Engin
     summary="Overwrite any of the state arrays",
     **documented(
         {200: (SceneSummary, "The scene, with overlaps when positions or orientations changed")},
-        (400, 401, 404, 406, 409, 413, 415, 422),
+        (400, 401, 404, 406, 409, 413, 415, 422, 503),
         body=StateUpdate,
     ),
 )
@@ -133,7 +133,7 @@ async def put_state(
     summary="Step a scene",
     **documented(
         {200: (StepAnswer, "The new state and each step's statistics")},
-        (400, 401, 404, 406, 409, 413, 415, 422),
+        (400, 401, 404, 406, 409, 413, 415, 422, 503),
         body=StepRequest,
         body_required=False,
     ),

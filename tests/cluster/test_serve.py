@@ -611,6 +611,54 @@ def test_a_scene_actor_whose_scene_is_gone_leaves(ray_cluster):
         time.sleep(0.2)
 
 
+def test_a_scene_whose_actor_finds_no_cpus_is_answered_503_and_the_actor_withdrawn(ray_cluster):
+    """A scene's new actor that waits ``MRDEM_SCENE_START`` seconds for CPUs (here: more
+    than any node has) makes the request a 503 that says what to do, and is withdrawn — not
+    left to start later, unasked (a request used to wait for as long as it took)."""
+    import ray
+    from ray.util.state import list_actors
+
+    from service.cluster import ActorScenes, actor_name
+    from service.errors import Unavailable
+    from service.store import open_store
+
+    _, url, settings = ray_cluster
+    with Client(url) as client:
+        mesh = _upload(client, shapes.icosphere(1))
+        scene = client.create_scene(bodies=[{"mesh": mesh, "position": [0, 0, 1]}], dt=1e-3)
+    store = open_store(settings)
+    scenes = ActorScenes(store, settings.model_copy(update={"scene_start": 2.0}), cpus=64)
+    name = actor_name("", scene.id)
+    raised: list[Exception] = []
+
+    def step() -> None:
+        try:
+            scenes.step("", scene.id, 1, None)
+        except Exception as error:  # noqa: BLE001 - checked below
+            raised.append(error)
+
+    request = threading.Thread(target=step, daemon=True)
+    request.start()
+    request.join(timeout=30)
+    try:
+        assert not request.is_alive(), "the request waited on for CPUs"
+    finally:
+        if request.is_alive():
+            ray.kill(ray.get_actor(name))
+        store.close()
+    (error,) = raised
+    assert isinstance(error, Unavailable), error
+    assert "no room in the cluster for the scene's actor (64 CPUs) within 2 s" in str(error)
+    assert "DELETE /v1/scenes/{id}" in str(error)
+    assert error.headers == {"Retry-After": "10"}
+    deadline = time.monotonic() + 10
+    while [a for a in list_actors(filters=[("name", "=", name)]) if a.state != "DEAD"]:
+        assert time.monotonic() < deadline, "the actor was left waiting"
+        time.sleep(0.2)
+    with pytest.raises(ValueError):
+        ray.get_actor(name)
+
+
 def _kill_node(cluster, node) -> None:
     """The node dies as a machine does: every process it runs (the scene's actor, maybe a
     replica) killed at once with its raylet, not told first."""
