@@ -129,10 +129,11 @@ class ActorScenes:
         except GetTimeoutError:
             ray.kill(handle, no_restart=True)
             raise Unavailable(
-                f"no room in the cluster for the scene's actor ({self.cpus:g} CPUs) within"
-                f" {self.start:g} s: the cluster's CPUs are held by other scenes (an actor"
-                f" each, until idle for {self.idle:g} s), replicas and tasks; delete the"
-                " scenes you no longer step (DELETE /v1/scenes/{id}), or retry later",
+                f"the scene's actor ({self.cpus:g} CPUs) did not start within"
+                f" {self.start:g} s: most likely no node has that many CPUs free (other"
+                f" scenes hold theirs until idle for {self.idle:g} s; replicas and tasks"
+                " too); delete the scenes you no longer step (DELETE /v1/scenes/{id}), or"
+                " retry later",
                 {"Retry-After": "10"},
             ) from None
 

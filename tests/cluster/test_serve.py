@@ -648,7 +648,7 @@ def test_a_scene_whose_actor_finds_no_cpus_is_answered_503_and_the_actor_withdra
         store.close()
     (error,) = raised
     assert isinstance(error, Unavailable), error
-    assert "no room in the cluster for the scene's actor (64 CPUs) within 2 s" in str(error)
+    assert "the scene's actor (64 CPUs) did not start within 2 s" in str(error)
     assert "DELETE /v1/scenes/{id}" in str(error)
     assert error.headers == {"Retry-After": "10"}
     deadline = time.monotonic() + 10
