@@ -77,6 +77,16 @@ def _as_a_replica(settings, query: dict):
     return store, columns, here
 
 
+def _readied_splitter(settings):
+    """A replica's splitter in this process (runs from 1 pair, two runs, tasks of 0.5 CPU)
+    whose nodes have all been readied."""
+    from service.cluster.batches import RaySplitter
+
+    splitter = RaySplitter(settings, 1, 2, 0.5)
+    assert splitter.ready(splitter.others(), timeout=60) == splitter.others()
+    return splitter
+
+
 def _search_tasks(address: str, which, seconds: float = 20.0, name: str = "_search_pieces") -> list:
     """The tasks of function ``name`` (by default the contacts tasks) that ``which(tasks)``
     picks, as soon as it picks any (the state API hears of tasks a moment later), or none
@@ -316,7 +326,7 @@ def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
     replica, done with its fifth, takes back the pieces the node has not begun — the answer
     is still the embedded service's, ``Server-Timing`` counts the time taken back, and the
     node's measured speed falls."""
-    from service.cluster.batches import RaySplitter, ranked
+    from service.cluster.batches import ranked
 
     _, url, settings = ray_cluster
     with (
@@ -327,8 +337,7 @@ def test_a_node_given_too_much_has_its_pieces_taken_back(ray_cluster, embedded):
         query = near_pairs(ids[:1], 4 * settings.split_pairs, seed=14)
         expected = alone.find_contacts(**query)
     store, columns, here = _as_a_replica(settings, query)
-    splitter = RaySplitter(settings, 1, 2, 0.5)
-    splitter.ready(splitter.others(), timeout=60)
+    splitter = _readied_splitter(settings)
     node = ranked(ids[:1], splitter.others())[0]
     try:  # first requests warm the banks here and the node's worker, until it searches
         deadline = time.monotonic() + 90
@@ -393,15 +402,14 @@ def test_a_node_gets_runs_once_a_worker_is_readied_there(
 def test_a_run_s_task_runs_in_a_worker_readied_on_its_node(ray_cluster, embedded):
     """The readying task's worker goes back to its node's pool and the run's task takes it:
     no fresh worker starts for a request."""
-    from service.cluster.batches import RaySplitter, ranked
+    from service.cluster.batches import ranked
 
     cluster, url, settings = ray_cluster
     with Client(url) as client:
         ids = [_upload(client, shapes.box())]
     query = _query(ids, 2 * settings.split_pairs, seed=17)
     store, columns, here = _as_a_replica(settings, query)
-    splitter = RaySplitter(settings, 1, 2, 0.5)
-    assert splitter.ready(splitter.others(), timeout=60) == splitter.others()
+    splitter = _readied_splitter(settings)
     node = ranked(ids, splitter.others())[0]
     address = f"http://{cluster.webui_url}"
     sent = time.time() * 1000 - 50  # ms, as the state API's times
@@ -431,7 +439,7 @@ def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded)
     other task of that replica's: the request is searched in the replica alone (no other
     node takes the run: the trees stay where the ranking put them); once it ended, the
     node has runs again."""
-    from service.cluster.batches import RaySplitter, _Task, ranked
+    from service.cluster.batches import _Task, ranked
 
     _, url, settings = ray_cluster
     with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
@@ -439,8 +447,7 @@ def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded)
         query = _query(ids[:1], 2 * settings.split_pairs, seed=15)
         expected = alone.find_contacts(**query)
     store, columns, here = _as_a_replica(settings, query)
-    splitter = RaySplitter(settings, 1, 2, 0.5)
-    splitter.ready(splitter.others(), timeout=60)
+    splitter = _readied_splitter(settings)
     node = ranked(ids[:1], splitter.others())[0]
     ended = _Task(node)
     splitter._end(ended)  # a task that ended before its request decided is not left
