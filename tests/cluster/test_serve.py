@@ -77,6 +77,15 @@ def _as_a_replica(settings, query: dict):
     return store, columns, here
 
 
+def _box_batch(url: str, embedded, n: int, seed: int):
+    """A box uploaded to the cluster and to the embedded service, ``n`` random pairs of it
+    (:func:`_query`): ``(the mesh ids, the query, the embedded service's answer)``."""
+    with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
+        ids = [_upload(c, shapes.box()) for c in (client, alone)]
+        query = _query(ids[:1], n, seed=seed)
+        return ids, query, alone.find_contacts(**query)
+
+
 def _readied_splitter(settings):
     """A replica's splitter in this process (runs from 1 pair, two runs, tasks of 0.5 CPU)
     whose nodes have all been readied."""
@@ -280,10 +289,7 @@ def test_a_run_whose_task_fails_is_searched_where_the_request_is(ray_cluster, em
     from service.search import split
 
     cluster, url, settings = ray_cluster
-    with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
-        ids = [_upload(c, shapes.box()) for c in (client, alone)]
-        query = _query(ids[:1], 2 * settings.split_pairs, seed=13)
-        expected = alone.find_contacts(**query)
+    ids, query, expected = _box_batch(url, embedded, 2 * settings.split_pairs, seed=13)
     store, columns, here = _as_a_replica(settings, query)
     unwritable = settings.model_copy(update={"data_dir": Path("/proc/version/mrdem")})
     splitter = RaySplitter(unwritable, 1, 2, 0.5)  # its tasks get the broken settings
@@ -368,10 +374,7 @@ def test_a_node_gets_runs_once_a_worker_is_readied_there(
     from service.cluster import batches
 
     _, url, settings = ray_cluster
-    with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
-        ids = [_upload(c, shapes.box()) for c in (client, alone)]
-        query = _query(ids[:1], 2 * settings.split_pairs, seed=16)
-        expected = alone.find_contacts(**query)
+    ids, query, expected = _box_batch(url, embedded, 2 * settings.split_pairs, seed=16)
     go = tmp_path / "go"
 
     def slow_ready(task_settings) -> float:  # a local function: Ray sends it by value
@@ -442,10 +445,7 @@ def test_a_node_still_on_a_task_left_to_end_gets_no_other(ray_cluster, embedded)
     from service.cluster.batches import _Task, ranked
 
     _, url, settings = ray_cluster
-    with Client(url) as client, Client(embedded.url, transport=embedded.transport) as alone:
-        ids = [_upload(c, shapes.box()) for c in (client, alone)]
-        query = _query(ids[:1], 2 * settings.split_pairs, seed=15)
-        expected = alone.find_contacts(**query)
+    ids, query, expected = _box_batch(url, embedded, 2 * settings.split_pairs, seed=15)
     store, columns, here = _as_a_replica(settings, query)
     splitter = _readied_splitter(settings)
     node = ranked(ids[:1], splitter.others())[0]
