@@ -211,7 +211,8 @@ class RaySplitter:
         self._readier = ray.remote(_ready_worker)
         self._readying: dict[str, ray.ObjectRef] = {}  # node → its readying task, running
         self._ready: set[str] = set()  # nodes with a worker readied (or whose readying failed)
-        self.ready(self.others())  # from the start: the first requests find them ready
+        if self.most > 1:  # from the start, where it splits: the first requests find them ready
+            self.ready(self.others())
 
     def applies(self, pairs: int) -> bool:
         return pairs >= self.threshold and self.most > 1
