@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import trimesh
 
 from engine.dynamics.forces import ContactModel, PaperSpring
 from engine.errors import InvalidArgumentError
@@ -177,6 +176,8 @@ def _vertex_axes(mesh: Mesh, tolerance: float = 1e-9) -> np.ndarray:
         if (d @ third >= 1.0 - tolerance).any():
             rotation = np.eye(4)
             rotation[:3, :3] = np.stack([d[i], d[j], third])  # rows: the vertex directions
+            import trimesh
+
             q = trimesh.transformations.quaternion_from_matrix(rotation)
             return q / np.linalg.norm(q)
     raise InvalidArgumentError(

@@ -18,7 +18,7 @@ from .banks import BankCache
 from .builds import BuildJobs
 from .codecs import BodyLimit
 from .compute import EngineRunner, Warmup
-from .errors import install_handlers
+from .handlers import install_handlers
 from .idempotency import InFlight
 from .metrics import Metrics
 from .openapi import install as install_openapi

@@ -15,23 +15,16 @@ One hierarchy for the service layer::
           └── NotReady            /readyz: kernels still compiling, the store not answering
 
 Engine errors (:class:`engine.EngineError`) are client errors by construction and become
-422 problems; request-validation errors too. Anything else is a bug: logged, answered with
-a 500 problem, the server stays up. A tree build that failed while its upload waited is
-answered with the job's own cause (:func:`service.routers.meshes._failure`): 422 for a mesh
-the engine cannot build, 409 when cancelled, 503 when out of memory, 500 (a plain
-:class:`ServiceError`) when the server failed — the detail says why either way.
+422 problems; request-validation errors too (the responses: :mod:`service.handlers`, apart
+so that a process using only the errors — a scene's actor — does not import FastAPI).
+Anything else is a bug: logged, answered with a 500 problem, the server stays up. A tree
+build that failed while its upload waited is answered with the job's own cause
+(:func:`service.routers.meshes._failure`): 422 for a mesh the engine cannot build, 409 when
+cancelled, 503 when out of memory, 500 (a plain :class:`ServiceError`) when the server
+failed — the detail says why either way.
 """
 
 from __future__ import annotations
-
-import logging
-
-from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
-from starlette.exceptions import HTTPException as StarletteHTTPException
-
-from engine import EngineError
 
 from .models.problems import field_errors, joined
 
@@ -45,14 +38,12 @@ __all__ = [
     "ServiceError",
     "Unauthorized",
     "Unprocessable",
+    "Unavailable",
     "UnsupportedMediaType",
-    "install_handlers",
     "invalid",
-    "problem",
 ]
 
 PROBLEM = "application/problem+json"
-log = logging.getLogger("mrdem.service")
 
 
 class ServiceError(Exception):
@@ -113,52 +104,3 @@ def invalid(error) -> Unprocessable:
     ``errors`` names each invalid field's path and what was wrong, ``detail`` joins them."""
     errors = field_errors(error.errors())
     return Unprocessable(joined(errors), errors=errors)
-
-
-def problem(
-    status: int, title: str, detail: str, instance: str | None = None, headers=None, **extra
-) -> JSONResponse:
-    """An RFC 9457 problem response."""
-    body = {"type": "about:blank", "title": title, "status": status, "detail": detail}
-    if instance:
-        body["instance"] = instance
-    body.update(extra)
-    return JSONResponse(body, status_code=status, media_type=PROBLEM, headers=headers)
-
-
-def install_handlers(app: FastAPI) -> None:
-    """Map every error to a problem response."""
-
-    @app.exception_handler(ServiceError)
-    async def _service(request: Request, exc: ServiceError):
-        return problem(
-            exc.status, exc.title, exc.detail, request.url.path, exc.headers, **exc.extra
-        )
-
-    @app.exception_handler(EngineError)
-    async def _engine(request: Request, exc: EngineError):
-        return problem(422, Unprocessable.title, str(exc), request.url.path)
-
-    @app.exception_handler(RequestValidationError)
-    async def _validation(request: Request, exc: RequestValidationError):
-        error = invalid(exc)
-        return problem(422, error.title, error.detail, request.url.path, **error.extra)
-
-    @app.exception_handler(StarletteHTTPException)
-    async def _http(request: Request, exc: StarletteHTTPException):
-        titles = {404: "Not Found", 405: "Method Not Allowed"}
-        detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
-        if exc.status_code == 404 and detail == "Not Found":
-            detail = f"no route {request.method} {request.url.path}"
-        return problem(
-            exc.status_code,
-            titles.get(exc.status_code, "Error"),
-            detail,
-            request.url.path,
-            getattr(exc, "headers", None),
-        )
-
-    @app.exception_handler(Exception)
-    async def _bug(request: Request, exc: Exception):
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return problem(500, ServiceError.title, "internal error (logged)", request.url.path)

@@ -29,7 +29,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from engine.errors import InvalidArgumentError, InvalidMeshError
 from engine.geometry.mesh import Mesh
@@ -141,6 +140,8 @@ def hull_properties(points: np.ndarray, why: str = "") -> tuple[float, np.ndarra
     points = np.unique(np.asarray(points, dtype=np.float64), axis=0)
     hull, what = None, f"has only {len(points)} distinct point(s)"
     if len(points) >= 4:
+        from scipy.spatial import ConvexHull, QhullError  # here: ~0.2 s of every start else
+
         try:
             hull = ConvexHull(points)
         except QhullError:

@@ -15,10 +15,9 @@ import dataclasses
 import os
 from functools import cached_property
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
-import trimesh
 
 from engine.errors import InvalidArgumentError, InvalidMeshError
 from engine.geometry.repair import (
@@ -29,6 +28,9 @@ from engine.geometry.repair import (
     readonly,
     repair_arrays,
 )
+
+if TYPE_CHECKING:  # imported where used: its import (scipy, networkx) is ~0.3 s of a start
+    import trimesh
 
 __all__ = ["MassProperties", "Mesh", "load_mesh"]
 
@@ -247,6 +249,8 @@ class Mesh:
     # ------------------------------------------------------------------ conversions
     def to_trimesh(self) -> trimesh.Trimesh:
         """A ``trimesh.Trimesh`` copy (``process=False``: same vertices and faces)."""
+        import trimesh
+
         return trimesh.Trimesh(
             vertices=self.vertices.copy(), faces=self.faces.copy(), process=False
         )
@@ -276,6 +280,8 @@ class Mesh:
 # ---------------------------------------------------------------------- loading
 def _scene_arrays(scene: trimesh.Scene, merge: bool) -> tuple[np.ndarray, np.ndarray]:
     """Concatenate every Trimesh of `scene` in world coordinates; (V,3) float64, (F,3) int64."""
+    import trimesh
+
     verts, faces, offset = [], [], 0
     for node in scene.graph.nodes_geometry:
         transform, name = scene.graph[node]
@@ -360,6 +366,8 @@ def load_mesh(
     if not file_type:
         raise InvalidMeshError(f"cannot read mesh {where}: unknown file type (no suffix)")
     file_type = file_type.lower().lstrip(".")
+    import trimesh
+
     try:
         scene = trimesh.load_scene(file_obj, file_type=file_type, process=False)
         vertices, faces = _scene_arrays(scene, merge_vertices)
