@@ -5,13 +5,16 @@ On a head (no CPUs) and two worker nodes of 1 CPU, one replica (0.4 CPU), scene 
 (:class:`cluster.RayCluster`):
 
 1. **Requests for unknown scene ids** (``GET /v1/scenes/<id>``, ``--unknown`` of them):
-   each answer's status and seconds, and the scene actors alive after them.
-2. **A scene's first step** (its actor starts: a process, the imports, the kernels, the
-   scene rebuilt from the store) against its next steps, for ``--scenes`` one-body scenes
-   (an icosphere dropped on a plane), one after another; the last one created after
-   ``--settle`` seconds (a deployment up for a while).
+   each answer's status and seconds, and the actors alive after them named for those ids.
+2. **A scene's first step** against its next steps, for ``--scenes`` one-body scenes (an
+   icosphere dropped on a plane), one after another; the last one created after
+   ``--settle`` seconds (a deployment up for a while). With ``--spares 0`` the first step
+   waits for the scene's actor to start (a process, the imports, the kernels, the scene
+   rebuilt from the store); with the default (``MRDEM_SCENE_SPARES``, 1) the scene takes
+   the replica's spare actor, started ahead, when it has one running.
 
     .venv/bin/python benchmarks/cluster_scenes.py [--scenes 3] [--unknown 4] [--settle 10]
+        [--spares N]
 
 Writes ``bench-results/cluster-scenes.json``.
 """
@@ -83,25 +86,26 @@ def first_steps(url: str, scenes: int, settle: float, steps: int = 5) -> list[di
 
 
 def unknown_scenes(url: str, count: int, timeout: float = 30.0) -> dict:
-    """``count`` GETs of scene ids that do not exist: statuses, seconds, scene actors after."""
+    """``count`` GETs of scene ids that do not exist: statuses, seconds, and the actors
+    alive after them named for those ids (the replica's spares are not counted)."""
     from ray.util.state import list_actors
 
-    statuses, seconds = [], []
+    from service.cluster import actor_name
+
+    statuses, seconds, names = [], [], set()
     for _ in range(count):
+        scene_id = uuid.uuid4().hex
+        names.add(actor_name(scene_id))
         start = time.perf_counter()
         try:
-            statuses.append(
-                httpx.get(f"{url}/v1/scenes/{uuid.uuid4().hex}", timeout=timeout).status_code
-            )
+            statuses.append(httpx.get(f"{url}/v1/scenes/{scene_id}", timeout=timeout).status_code)
         except httpx.TimeoutException:
             statuses.append(f"no answer in {timeout:.0f} s")
         seconds.append(time.perf_counter() - start)
         print(f"unknown scene: {statuses[-1]} in {seconds[-1]:.3f} s", flush=True)
     time.sleep(1.0)  # the state API hears of actors a moment later
     actors = [
-        a
-        for a in list_actors(filters=[("state", "=", "ALIVE")], limit=10_000)
-        if a.class_name == "SceneActor"
+        a for a in list_actors(filters=[("state", "=", "ALIVE")], limit=10_000) if a.name in names
     ]
     return {"statuses": statuses, "seconds": seconds, "scene_actors_alive": len(actors)}
 
@@ -111,6 +115,9 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=3)
     parser.add_argument("--unknown", type=int, default=4)
     parser.add_argument("--settle", type=float, default=10.0)
+    parser.add_argument(
+        "--spares", type=int, default=None, help="MRDEM_SCENE_SPARES (default: the setting's)"
+    )
     args = parser.parse_args()
     out: dict = {"machine": machine(), "args": vars(args)}
     print(f"machine: {out['machine'].get('cpu')}")
@@ -125,7 +132,8 @@ def main() -> None:
     try:
         cluster = RayCluster(2, 1, store)
         try:
-            url = cluster.deploy(1, 0.4, scene_cpus=0.5)
+            spares = {} if args.spares is None else {"scene_spares": args.spares}
+            url = cluster.deploy(1, 0.4, scene_cpus=0.5, **spares)
             out["unknown"] = unknown_scenes(url, args.unknown)
             out["scenes"] = first_steps(url, args.scenes, args.settle)
         finally:
@@ -146,7 +154,7 @@ def main() -> None:
     print(
         f"{len(unknown['statuses'])} unknown scene ids: {unknown['statuses']},"
         f" {min(unknown['seconds']):.3f}-{max(unknown['seconds']):.3f} s;"
-        f" scene actors alive after: {unknown['scene_actors_alive']}"
+        f" actors of those ids alive after: {unknown['scene_actors_alive']}"
     )
     OUT.mkdir(exist_ok=True)
     (OUT / "cluster-scenes.json").write_text(json.dumps(out, indent=2, default=str))

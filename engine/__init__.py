@@ -55,7 +55,7 @@ from engine.geometry import (
 from engine.scene import DEFAULT_SCHEME, SCHEMES, Scene, SceneState
 from engine.trees import TREE_FORMAT, SurrogateTree, TreeStats, build_tree, size_epsilon
 from engine.trees.halos import AUTO as AUTO_EPSILON
-from engine.warmup import warmup
+from engine.warmup import warm_scene, warmup
 
 __all__ = [
     "AUTO_EPSILON",
@@ -94,6 +94,7 @@ __all__ = [
     "TriangleSet",
     "triangle_contacts",
     "triangle_distances",
+    "warm_scene",
     "warmup",
     "EngineError",
     "InvalidArgumentError",

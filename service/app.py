@@ -76,6 +76,7 @@ def create_app(
             yield
         finally:
             app.state.builds.close()
+            app.state.scenes.close()
             app.state.store.close()
 
     app = FastAPI(

@@ -20,6 +20,7 @@ from __future__ import annotations
 import io
 import math
 import threading
+import uuid
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -177,6 +178,10 @@ class LiveScenes:
         self._live: OrderedDict[tuple[str, str], LiveScene] = OrderedDict()
         self._lock = threading.Lock()
 
+    def new_id(self) -> str:
+        """An id for a scene about to be created (random: 128 bits)."""
+        return uuid.uuid4().hex
+
     def add(self, owner: str, scene_id: str, live: LiveScene) -> None:
         with self._lock:
             self._live[(owner, scene_id)] = live
@@ -233,6 +238,11 @@ class LiveScenes:
     def drop(self, owner: str, scene_id: str) -> None:
         with self._lock:
             self._live.pop((owner, scene_id), None)
+
+    def close(self) -> None:
+        """The scenes in memory dropped (the app stops; the store keeps them)."""
+        with self._lock:
+            self._live.clear()
 
     # the operations of the routes (blocking: run them in a worker thread); a cluster's
     # scene actors offer the same three (service.cluster.scenes)

@@ -111,6 +111,13 @@ class Settings(BaseSettings):
     scene_idle: float = Field(
         600.0, ge=0, description="seconds a scene's actor waits for a request before it leaves"
     )
+    scene_spares: int = Field(
+        1,
+        ge=0,
+        description="scene actors each replica keeps started ahead, their kernels loaded, for"
+        " the next scenes it creates: a new scene's first step finds its actor running (each"
+        " holds MRDEM_SCENE_CPUS while it waits; 0: none)",
+    )
     split_pairs: int = Field(
         2000, ge=1, description="contacts requests of at least this many pairs run as Ray tasks"
     )

@@ -100,7 +100,9 @@ class Ingress:
         settings = self.settings
 
         def scene_host(store, settings):
-            return ActorScenes(store, settings, settings.scene_cpus, settings.scene_idle)
+            return ActorScenes(
+                store, settings, settings.scene_cpus, settings.scene_idle, settings.scene_spares
+            )
 
         def splitter(store, settings):
             return RaySplitter(

@@ -9,17 +9,35 @@ service does.
 An actor is a process: a live scene costs one (with its kernels loaded) while it is used.
 So one is made only for a scene in the store (an unknown id is a 404 from the replica), and
 one whose scene is gone from the store leaves after its 404.
+
+Starting an actor takes seconds (a process, the imports, the store opened, Numba's first
+dispatch and the scene's kernels loaded: 2.2–2.5 s on a 2-vCPU VM, measured), which a
+scene's first step would wait for. So each replica keeps ``MRDEM_SCENE_SPARES`` actors
+started ahead, their kernels loaded (:func:`engine.warm_scene`), each named by an id no
+scene has yet; a new scene takes one's id (:meth:`ActorScenes.new_id`) and its first step
+finds its actor running. The replica's calls keep its spares from leaving while idle; a
+replica gone, they leave after ``MRDEM_SCENE_IDLE`` seconds as any idle actor does.
 """
 
 from __future__ import annotations
 
-import hashlib
+import contextlib
+import logging
 import threading
 import time
+import uuid
 from collections import OrderedDict
 
 import ray
-from ray.exceptions import ActorDiedError, ActorUnavailableError, GetTimeoutError, RayTaskError
+from ray.exceptions import (
+    ActorDiedError,
+    ActorUnavailableError,
+    GetTimeoutError,
+    RayActorError,
+    RayTaskError,
+)
+
+import engine
 
 from ..errors import NotFound, Unavailable
 from ..scenes import LiveScenes
@@ -31,22 +49,32 @@ __all__ = ["ActorScenes", "SceneActor", "actor_name"]
 NAMESPACE = "mrdem"
 HANDLES = 4096  # scene actors' handles a replica keeps (least recently used dropped)
 LEAVE_AFTER = 0.5  # seconds an actor whose scene is gone waits to leave (its 404 sent)
+SPARE_CHECK = 0.1  # seconds a replica waits for a spare's answer before it counts as starting
 _GONE = (ActorDiedError, ActorUnavailableError)
 
+log = logging.getLogger("mrdem.cluster")
 
-def actor_name(owner: str, scene_id: str) -> str:
-    """The actor's name: the scene id and a digest of its owner (API keys' digests are long,
-    and two owners may use the same id)."""
-    return f"scene-{scene_id}-{hashlib.sha256(owner.encode()).hexdigest()[:16]}"
+
+def actor_name(scene_id: str) -> str:
+    """The actor's name: the scene's id (random, made by the service: two owners' scenes
+    never share one; an actor serves only its scene's owner, :meth:`SceneActor.call`)."""
+    return f"scene-{scene_id}"
 
 
 class SceneActor:
     """One scene in its own process: a :class:`LiveScenes` over the shared store, used
-    serially (one call at a time). Leaves after ``idle`` seconds without a call."""
+    serially (one call at a time), for the scene's ``owner`` (None: the first whose call
+    finds the scene). Leaves after ``idle`` seconds without a call. A spare (``warm``)
+    loads the kernels of a scene's steps first (:func:`engine.warm_scene`)."""
 
-    def __init__(self, settings: Settings, idle: float) -> None:
+    def __init__(
+        self, settings: Settings, idle: float, owner: str | None = None, warm: bool = False
+    ) -> None:
         self.store = open_store(settings)
         self.scenes = LiveScenes(self.store, settings.engine_threads, capacity=1)
+        self.owner = owner
+        if warm:
+            engine.warm_scene()
         self.idle, self.last = idle, time.monotonic()
         if idle > 0:
             threading.Thread(target=self._leave_when_idle, daemon=True).start()
@@ -62,21 +90,25 @@ class SceneActor:
                 self._leave()
                 return
 
-    def call(self, method: str, *args):
-        """``LiveScenes.<method>(*args)`` (summary, put_state, step). An actor whose scene
-        is not there (deleted meanwhile: 404) leaves right after answering: it is there for
-        that scene alone."""
+    def call(self, method: str, owner: str, scene_id: str, *args):
+        """``LiveScenes.<method>(owner, scene_id, *args)`` (summary, put_state, step). An
+        actor whose owner's scene is not there (deleted meanwhile: 404) leaves right after
+        answering: it is there for that scene alone. Another owner's 404 changes nothing."""
         self.last = time.monotonic()
         try:
-            return getattr(self.scenes, method)(*args)
+            answer = getattr(self.scenes, method)(owner, scene_id, *args)
         except NotFound:
-            threading.Timer(LEAVE_AFTER, self._leave).start()  # its answer sent first
+            if owner == self.owner:
+                threading.Timer(LEAVE_AFTER, self._leave).start()  # its answer sent first
             raise
         finally:
             self.last = time.monotonic()
+        self.owner = owner  # the scene was found: it is this owner's
+        return answer
 
     def node(self) -> str:
-        """The id of the Ray node this actor runs on."""
+        """The id of the Ray node this actor runs on (a call: the actor is not idle)."""
+        self.last = time.monotonic()
         return ray.get_runtime_context().get_node_id()
 
 
@@ -85,9 +117,14 @@ class ActorScenes:
     each a call to the scene's actor (created when missing, again when it died)."""
 
     def __init__(
-        self, store: Store, settings: Settings, cpus: float = 1.0, idle: float = 600.0
+        self,
+        store: Store,
+        settings: Settings,
+        cpus: float = 1.0,
+        idle: float = 600.0,
+        spares: int = 0,
     ) -> None:
-        self.store, self.cpus, self.idle = store, cpus, idle
+        self.store, self.cpus, self.idle, self.spares = store, cpus, idle, spares
         self.start = settings.scene_start  # seconds a new actor may wait for CPUs
         threads = max(1, int(round(cpus)))
         self.actor_settings = settings.model_copy(
@@ -97,12 +134,62 @@ class ActorScenes:
         self._handles: OrderedDict[str, object] = OrderedDict()  # actor name → handle
         self._lock = threading.Lock()
         self.recreate_for = 120.0  # seconds a call goes on recreating a scene's dead actor
+        self._spares: list[tuple[str, object]] = []  # (scene id, actor), started ahead
+        self._closed = threading.Event()
+        if spares:
+            with self._lock:
+                self._fill()
+            if idle > 0:  # a spare waits for its scene as long as it takes: kept from leaving
+                threading.Thread(target=self._keep_spares, daemon=True).start()
+
+    def new_id(self) -> str:
+        """The id of a scene about to be created: a spare's (its actor started, or starting),
+        the spare then replaced; a random one when there is none (or every spare died: its
+        node did)."""
+        for _ in range(self.spares + 1):  # a dead one's replacement may be taken: it starts
+            with self._lock:
+                if not self._spares:
+                    break
+                scene_id, handle = self._spares.pop(0)
+                self._fill()
+            if _alive(handle):
+                return scene_id
+        return uuid.uuid4().hex
+
+    def _fill(self) -> None:
+        """Spares started up to ``spares`` (``_lock`` held)."""
+        while len(self._spares) < self.spares and not self._closed.is_set():
+            scene_id = uuid.uuid4().hex
+            self._spares.append((scene_id, self._create(actor_name(scene_id), warm=True)))
+
+    def _keep_spares(self) -> None:
+        """Every third of ``idle``: each spare called (its idle clock starts again), a dead
+        one replaced."""
+        period = max(0.5, min(self.idle / 3, 60.0))
+        while not self._closed.wait(period):
+            with self._lock:
+                spares = list(self._spares)
+            dead = [entry for entry in spares if not _alive(entry[1])]
+            with self._lock:
+                self._spares = [entry for entry in self._spares if entry not in dead]
+                self._fill()
+            for scene_id, _ in dead:
+                log.info("a spare scene actor (%s) died; another started", scene_id)
+
+    def close(self) -> None:
+        """The spares withdrawn (the replica stops); the scenes' actors stay."""
+        self._closed.set()
+        with self._lock:
+            spares, self._spares = self._spares, []
+        for _, handle in spares:
+            with contextlib.suppress(RayActorError):  # gone already
+                ray.kill(handle, no_restart=True)
 
     def actor(self, owner: str, scene_id: str):
         """The scene's actor (the handle this replica holds; else found by name, or created
         for a scene in the store — :class:`NotFound` for one that is not: an actor is a
         process, and would stay until idle for ``MRDEM_SCENE_IDLE`` seconds)."""
-        name = actor_name(owner, scene_id)
+        name = actor_name(scene_id)
         with self._lock:
             if name in self._handles:
                 self._handles.move_to_end(name)
@@ -112,7 +199,7 @@ class ActorScenes:
         except ValueError:  # none alive: created, if there is such a scene
             if self.store.scene_version(owner, scene_id) is None:
                 raise NotFound(f"no scene {scene_id!r}") from None
-            handle = self._create(name)
+            handle = self._create(name, owner)
         self._started(handle)
         with self._lock:
             self._handles[name] = handle
@@ -137,9 +224,9 @@ class ActorScenes:
                 {"Retry-After": "10"},
             ) from None
 
-    def _create(self, name: str):
+    def _create(self, name: str, owner: str | None = None, warm: bool = False):
         """The actor named ``name``, created (or the one another replica created just
-        before)."""
+        before) for ``owner``'s scene (None: a spare, see :class:`SceneActor`)."""
         return self._remote.options(
             name=name,
             namespace=NAMESPACE,
@@ -147,11 +234,11 @@ class ActorScenes:
             lifetime="detached",  # not tied to the replica that made it
             num_cpus=self.cpus,
             max_restarts=0,  # a dead actor is recreated by the next request, from the store
-        ).remote(self.actor_settings, self.idle)
+        ).remote(self.actor_settings, self.idle, owner, warm)
 
-    def _forget(self, owner: str, scene_id: str) -> None:
+    def _forget(self, scene_id: str) -> None:
         with self._lock:
-            self._handles.pop(actor_name(owner, scene_id), None)
+            self._handles.pop(actor_name(scene_id), None)
 
     def _call(self, owner: str, scene_id: str, method: str, *args):
         deadline = time.monotonic() + self.recreate_for
@@ -163,7 +250,7 @@ class ActorScenes:
             except RayTaskError as exc:  # the scene's own answer: 404, 409, 422 …
                 raise exc.cause from None
             except _GONE:  # its node died or it left: the next actor loads the stored state
-                self._forget(owner, scene_id)
+                self._forget(scene_id)
                 if time.monotonic() > deadline:
                     raise
             time.sleep(pause)
@@ -183,9 +270,23 @@ class ActorScenes:
 
     def drop(self, owner: str, scene_id: str) -> None:
         """The scene was deleted: its actor goes."""
-        self._forget(owner, scene_id)
+        self._forget(scene_id)
         try:
-            actor = ray.get_actor(actor_name(owner, scene_id), namespace=NAMESPACE)
+            actor = ray.get_actor(actor_name(scene_id), namespace=NAMESPACE)
         except ValueError:  # no such actor
             return
         ray.kill(actor, no_restart=True)
+
+
+def _alive(handle) -> bool:
+    """Whether ``handle``'s actor is alive: it answers within ``SPARE_CHECK`` seconds, or is
+    still starting (no answer yet, no failure)."""
+    answer = handle.node.remote()
+    done, _ = ray.wait([answer], timeout=SPARE_CHECK)
+    if not done:
+        return True
+    try:
+        ray.get(answer)
+    except RayActorError:
+        return False
+    return True

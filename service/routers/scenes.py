@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import uuid
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Request
@@ -74,7 +73,7 @@ async def create_scene(
         scene = await engine.run(
             "build_scene", build_scene, spec, store.tree, settings.engine_threads
         )
-        scene_id = uuid.uuid4().hex
+        scene_id = await engine.io(scenes.new_id)  # on a cluster: a started actor's
         live = LiveScene(scene, spec, 0)
         answer = summary_of(scene_id, live)
         remember = None if key is None else key.remember(201, answer.model_dump())

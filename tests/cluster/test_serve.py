@@ -12,7 +12,6 @@ import os
 import signal
 import threading
 import time
-import uuid
 from pathlib import Path
 
 import httpx
@@ -208,9 +207,11 @@ def test_a_big_batch_split_across_the_nodes_answers_what_one_process_answers(ray
             parts = ["search", "submit", "here", "taken", "task", "wait", "merge", "encode"]
             assert list(timing) == parts
             assert timing["search"] >= timing["here"] + timing["taken"] + timing["wait"]
-            new = _search_tasks(  # its task, ended or not
+            new = _search_tasks(  # its task, ended or not, once on a node
                 address,
-                lambda ts, since=sent: [t for t in ts if (t.creation_time_ms or 0) >= since],
+                lambda ts, since=sent: [
+                    t for t in ts if (t.creation_time_ms or 0) >= since and t.node_id
+                ],
             )
             assert len(new) == 1, new  # one run here, one task
             replica = response.headers["X-Mrdem-Replica"]
@@ -539,15 +540,15 @@ def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embe
                 if name == "cluster":
                     acknowledged.append(state.steps)
                     if k == 9:  # kill the node the scene's actor runs on
-                        actor = ray.get_actor(actor_name("", scene.id), namespace=NAMESPACE)
+                        actor = ray.get_actor(actor_name(scene.id), namespace=NAMESPACE)
                         node_id = ray.get(actor.node.remote())
                         (node,) = [n for n in cluster_nodes.worker_nodes if n.node_id == node_id]
                         _kill_node(cluster_nodes, node)
             if name == "cluster":  # a new actor, on the node left, took the scene over
-                actor = ray.get_actor(actor_name("", scene.id), namespace=NAMESPACE)
+                actor = ray.get_actor(actor_name(scene.id), namespace=NAMESPACE)
                 assert ray.get(actor.node.remote()) != node_id
                 (info,) = list_actors(
-                    filters=[("name", "=", actor_name("", scene.id)), ("state", "=", "ALIVE")],
+                    filters=[("name", "=", actor_name(scene.id)), ("state", "=", "ALIVE")],
                     detail=True,
                 )
                 assert _environ(info.pid).get("MALLOC_ARENA_MAX") == "1"  # as its replica
@@ -561,109 +562,6 @@ def test_a_scene_whose_node_dies_goes_on_from_its_stored_state(ray_cluster, embe
             tolerance = 1e-5 if part in ("positions", "orientations") else 1e-3
             np.testing.assert_allclose(got, expected, rtol=0, atol=tolerance, err_msg=part)
     cluster_nodes.add_node(num_cpus=2, object_store_memory=10**8)  # for what runs after
-
-
-def test_an_unknown_scene_is_answered_404_without_an_actor(ray_cluster):
-    """A scene id that is not in the store is answered 404 by the replica and starts no
-    actor: an actor is a process, and one made for an unknown id stayed until idle
-    (``MRDEM_SCENE_IDLE``, 600 s) — four such requests held every CPU this cluster's nodes
-    had for scenes, and the next one waited."""
-    from ray.util.state import list_actors
-
-    from service.cluster import actor_name
-
-    _, url, _ = ray_cluster
-    unknown = [uuid.uuid4().hex for _ in range(8)]
-    for scene_id in unknown:
-        for method, path, body in (("GET", "", None), ("POST", "/step", {"steps": 1})):
-            response = httpx.request(
-                method, f"{url}/v1/scenes/{scene_id}{path}", json=body, timeout=30
-            )
-            assert response.status_code == 404, response.text
-            problem = response.json()
-            assert problem["status"] == 404 and scene_id in problem["detail"], problem
-    names = {actor_name("", scene_id) for scene_id in unknown}
-    assert not [a for a in list_actors(limit=10_000) if a.name in names]
-
-
-def test_a_scene_actor_whose_scene_is_gone_leaves(ray_cluster):
-    """An actor whose scene was removed from the store behind it (another replica's
-    DELETE reached the store, not the actor) answers 404 and leaves, instead of staying
-    until idle."""
-    import ray
-
-    from service.cluster import NAMESPACE, actor_name
-    from service.store import open_store
-
-    _, url, settings = ray_cluster
-    with Client(url) as client:
-        mesh = _upload(client, shapes.icosphere(1))
-        scene = client.create_scene(bodies=[{"mesh": mesh, "position": [0, 0, 1]}], dt=1e-3)
-        scene.step(1)  # its actor made
-    actor = ray.get_actor(actor_name("", scene.id), namespace=NAMESPACE)
-    store = open_store(settings)
-    try:
-        assert store.delete_scene("", scene.id)
-    finally:
-        store.close()
-    response = httpx.post(f"{url}/v1/scenes/{scene.id}/step", json={"steps": 1}, timeout=30)
-    assert response.status_code == 404, response.text
-    deadline = time.monotonic() + 10
-    while True:
-        try:
-            ray.get(actor.node.remote(), timeout=5)
-        except ray.exceptions.RayActorError:
-            break  # gone
-        assert time.monotonic() < deadline, "the actor stayed"
-        time.sleep(0.2)
-
-
-def test_a_scene_whose_actor_finds_no_cpus_is_answered_503_and_the_actor_withdrawn(ray_cluster):
-    """A scene's new actor that waits ``MRDEM_SCENE_START`` seconds for CPUs (here: more
-    than any node has) makes the request a 503 that says what to do, and is withdrawn — not
-    left to start later, unasked (a request used to wait for as long as it took)."""
-    import ray
-    from ray.util.state import list_actors
-
-    from service.cluster import ActorScenes, actor_name
-    from service.errors import Unavailable
-    from service.store import open_store
-
-    _, url, settings = ray_cluster
-    with Client(url) as client:
-        mesh = _upload(client, shapes.icosphere(1))
-        scene = client.create_scene(bodies=[{"mesh": mesh, "position": [0, 0, 1]}], dt=1e-3)
-    store = open_store(settings)
-    scenes = ActorScenes(store, settings.model_copy(update={"scene_start": 2.0}), cpus=64)
-    name = actor_name("", scene.id)
-    raised: list[Exception] = []
-
-    def step() -> None:
-        try:
-            scenes.step("", scene.id, 1, None)
-        except Exception as error:  # noqa: BLE001 - checked below
-            raised.append(error)
-
-    request = threading.Thread(target=step, daemon=True)
-    request.start()
-    request.join(timeout=30)
-    try:
-        assert not request.is_alive(), "the request waited on for CPUs"
-    finally:
-        if request.is_alive():
-            ray.kill(ray.get_actor(name))
-        store.close()
-    (error,) = raised
-    assert isinstance(error, Unavailable), error
-    assert "the scene's actor (64 CPUs) did not start within 2 s" in str(error)
-    assert "DELETE /v1/scenes/{id}" in str(error)
-    assert error.headers == {"Retry-After": "10"}
-    deadline = time.monotonic() + 10
-    while [a for a in list_actors(filters=[("name", "=", name)]) if a.state != "DEAD"]:
-        assert time.monotonic() < deadline, "the actor was left waiting"
-        time.sleep(0.2)
-    with pytest.raises(ValueError):
-        ray.get_actor(name)
 
 
 def _kill_node(cluster, node) -> None:

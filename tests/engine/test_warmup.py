@@ -1,11 +1,13 @@
-"""engine.warmup: parts, workers, the stamp of a completed warm-up, and the collector's
-thresholds while compiling."""
+"""engine.warmup: parts, workers, the stamp of a completed warm-up, the collector's
+thresholds while compiling, and the small scene's warm-up."""
 
 from __future__ import annotations
 
 import gc
 import importlib
 import os
+import subprocess
+import sys
 
 import numba
 import pytest
@@ -74,3 +76,42 @@ def test_the_stamp_names_the_warm_up_source_and_the_compiler(monkeypatch, empty_
 def test_a_worker_count_out_of_range_is_refused(workers):
     with pytest.raises(InvalidArgumentError, match="workers must be"):
         warmup_module.warmup(workers)
+
+
+WARM_SCENE_PROBE = """
+import numba.core.dispatcher as dispatcher
+import engine
+from engine import Scene, shapes
+
+engine.warm_scene()
+dispatched = []  # kernels loaded or compiled from here on: a first call goes through this
+first_call = dispatcher.Dispatcher._compile_for_args
+
+
+def noted(self, *args, **kwargs):
+    dispatched.append(self.py_func.__qualname__)
+    return first_call(self, *args, **kwargs)
+
+
+dispatcher.Dispatcher._compile_for_args = noted
+scene = Scene(gravity=(0.0, 0.0, -9.81))
+scene.add_plane(size=4.0, divisions=2)
+scene.add_body(shapes.icosphere(2, radius=0.5), position=(0.0, 0.0, 0.52))
+scene.add_body(shapes.box(), position=(1.0, 0.0, 0.51))
+for _ in range(3):
+    scene.step(1e-3)
+scene.set_state(positions=scene.positions)
+scene.step(1e-3)
+print("dispatched:", " ".join(dispatched))
+"""
+
+
+def test_a_warmed_scene_process_loads_no_other_kernel_for_another_scene():
+    """After :func:`engine.warm_scene` (a fresh process), building another scene of other
+    meshes, stepping it with the default scheme and setting its state dispatch no kernel
+    for the first time: the warm-up loaded all of them."""
+    found = subprocess.run(
+        [sys.executable, "-c", WARM_SCENE_PROBE], capture_output=True, text=True, timeout=600
+    )
+    assert found.returncode == 0, found.stderr[-3000:]
+    assert found.stdout.strip().splitlines()[-1] == "dispatched:", found.stdout

@@ -1,0 +1,238 @@
+"""service/cluster/scenes.py on a real Ray cluster: scenes' actors made only for scenes in
+the store, leaving when their scene is gone, withdrawn when they find no CPUs, and the spares
+each replica starts ahead so that a new scene's first step finds its actor running."""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+import uuid
+
+import httpx
+import pytest
+
+from clients import Client
+from engine import shapes
+
+pytestmark = pytest.mark.cluster
+
+
+def _upload(client: Client, mesh) -> str:
+    return client.upload_mesh(mesh, epsilon=0.05).id
+
+
+def _states(name: str) -> set[str]:
+    """The states of the actors named ``name`` (Ray's state API; none: an empty set)."""
+    from ray.util.state import list_actors
+
+    return {a.state for a in list_actors(filters=[("name", "=", name)], limit=10_000)}
+
+
+def _until_dead(name: str, why: str = "the actor stayed", seconds: float = 10.0) -> None:
+    deadline = time.monotonic() + seconds
+    while _states(name) - {"DEAD"}:
+        assert time.monotonic() < deadline, why
+        time.sleep(0.2)
+
+
+def _until_alive(name: str, seconds: float = 60.0) -> None:
+    """Until the actor named ``name`` runs (a start takes seconds on a busy machine)."""
+    deadline = time.monotonic() + seconds
+    while _states(name) != {"ALIVE"}:
+        assert time.monotonic() < deadline, (name, _states(name))
+        time.sleep(0.2)
+
+
+def _scene_actors() -> set[str]:
+    """The names of the scene actors alive."""
+    from ray.util.state import list_actors
+
+    alive = list_actors(filters=[("state", "=", "ALIVE")], limit=10_000)
+    return {a.name for a in alive if a.class_name == "SceneActor"}
+
+
+def _scene(client: Client):
+    """A one-body scene made through ``client``."""
+    mesh = _upload(client, shapes.icosphere(1))
+    return client.create_scene(bodies=[{"mesh": mesh, "position": [0, 0, 1]}], dt=1e-3)
+
+
+def test_an_unknown_scene_is_answered_404_without_an_actor(ray_cluster):
+    """A scene id that is not in the store is answered 404 by the replica and starts no
+    actor: an actor is a process, and one made for an unknown id stayed until idle
+    (``MRDEM_SCENE_IDLE``, 600 s) — four such requests held every CPU this cluster's nodes
+    had for scenes, and the next one waited."""
+    from ray.util.state import list_actors
+
+    from service.cluster import actor_name
+
+    _, url, _ = ray_cluster
+    unknown = [uuid.uuid4().hex for _ in range(8)]
+    for scene_id in unknown:
+        for method, path, body in (("GET", "", None), ("POST", "/step", {"steps": 1})):
+            response = httpx.request(
+                method, f"{url}/v1/scenes/{scene_id}{path}", json=body, timeout=30
+            )
+            assert response.status_code == 404, response.text
+            problem = response.json()
+            assert problem["status"] == 404 and scene_id in problem["detail"], problem
+    names = {actor_name(scene_id) for scene_id in unknown}
+    assert not [a for a in list_actors(limit=10_000) if a.name in names]
+
+
+def test_a_scene_actor_whose_scene_is_gone_leaves(ray_cluster):
+    """An actor whose scene was removed from the store behind it (another replica's
+    DELETE reached the store, not the actor) answers 404 and leaves, instead of staying
+    until idle."""
+    import ray
+
+    from service.cluster import NAMESPACE, actor_name
+    from service.store import open_store
+
+    _, url, settings = ray_cluster
+    with Client(url) as client:
+        scene = _scene(client)
+        scene.step(1)  # its actor made (or a spare's, in use)
+    actor = ray.get_actor(actor_name(scene.id), namespace=NAMESPACE)
+    store = open_store(settings)
+    try:
+        assert store.delete_scene("", scene.id)
+    finally:
+        store.close()
+    response = httpx.post(f"{url}/v1/scenes/{scene.id}/step", json={"steps": 1}, timeout=30)
+    assert response.status_code == 404, response.text
+    deadline = time.monotonic() + 10
+    while True:
+        try:
+            ray.get(actor.node.remote(), timeout=5)
+        except ray.exceptions.RayActorError:
+            break  # gone
+        assert time.monotonic() < deadline, "the actor stayed"
+        time.sleep(0.2)
+
+
+def test_a_scene_whose_actor_finds_no_cpus_is_answered_503_and_the_actor_withdrawn(ray_cluster):
+    """A scene's new actor that waits ``MRDEM_SCENE_START`` seconds for CPUs (here: more
+    than any node has) makes the request a 503 that says what to do, and is withdrawn — not
+    left to start later, unasked (a request used to wait for as long as it took)."""
+    import ray
+
+    from service.cluster import ActorScenes, actor_name
+    from service.errors import Unavailable
+    from service.store import open_store
+
+    _, url, settings = ray_cluster
+    with Client(url) as client:
+        scene = _scene(client)
+    name = actor_name(scene.id)
+    with contextlib.suppress(ValueError):  # its actor (a spare's) gone, as when a node dies
+        ray.kill(ray.get_actor(name))
+    _until_dead(name)
+    store = open_store(settings)
+    scenes = ActorScenes(store, settings.model_copy(update={"scene_start": 2.0}), cpus=64)
+    raised: list[Exception] = []
+
+    def step() -> None:
+        try:
+            scenes.step("", scene.id, 1, None)
+        except Exception as error:  # noqa: BLE001 - checked below
+            raised.append(error)
+
+    request = threading.Thread(target=step, daemon=True)
+    request.start()
+    request.join(timeout=30)
+    try:
+        assert not request.is_alive(), "the request waited on for CPUs"
+    finally:
+        if request.is_alive():
+            ray.kill(ray.get_actor(name))
+        store.close()
+    (error,) = raised
+    assert isinstance(error, Unavailable), error
+    assert "the scene's actor (64 CPUs) did not start within 2 s" in str(error)
+    assert "DELETE /v1/scenes/{id}" in str(error)
+    assert error.headers == {"Retry-After": "10"}
+    _until_dead(name, "the actor was left waiting")
+    with pytest.raises(ValueError):
+        ray.get_actor(name)
+
+
+def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
+    """Each replica keeps a spare actor started (``MRDEM_SCENE_SPARES``): a new scene takes
+    one's id, its first step is answered by that actor, and the replica starts another."""
+    from service.cluster import actor_name
+
+    _, url, _ = ray_cluster
+    deadline = time.monotonic() + 60
+    while not (before := _scene_actors()):  # the replicas' spares, started with them
+        assert time.monotonic() < deadline, "no replica started a spare"
+        time.sleep(0.5)
+    with Client(url) as client:
+        scene = _scene(client)
+        assert actor_name(scene.id) in before, (scene.id, before)
+        assert scene.step(1).steps == 1
+        scene.delete()  # its actor too: the CPUs back for the tests after
+    deadline = time.monotonic() + 60
+    while not _scene_actors() - before:
+        assert time.monotonic() < deadline, "no spare started in its place"
+        time.sleep(0.5)
+
+
+def test_spares_are_kept_taken_replaced_and_withdrawn(ray_cluster):
+    """A replica's spare outlives ``MRDEM_SCENE_IDLE`` (its replica calls it); one taken
+    for a scene that never came leaves when idle; a dead one is not handed out; the
+    replica's end withdraws its spares (here: those of a replica whose actors would wait
+    600 s idle)."""
+    import ray
+
+    from service.cluster import ActorScenes, actor_name
+    from service.store import open_store
+
+    _, _, settings = ray_cluster
+    store = open_store(settings)
+    scenes = ActorScenes(store, settings, cpus=0.5, idle=1.5, spares=1)
+    patient = ActorScenes(store, settings, cpus=0.5, idle=600.0, spares=1)
+    try:
+        ((first, _),) = scenes._spares  # (its id, its actor)
+        _until_alive(actor_name(first))
+        time.sleep(6.0)  # four times its idle time
+        assert _states(actor_name(first)) == {"ALIVE"}, "the spare did not outlive its idle time"
+        kept = scenes.new_id()
+        assert kept == first
+        ((replacement, handle),) = scenes._spares  # started when the first was taken
+        ray.kill(handle, no_restart=True)
+        _until_dead(actor_name(replacement))
+        assert scenes.new_id() != replacement  # a dead spare is not handed out
+        _until_dead(actor_name(kept), "a spare taken, its scene never made, stayed")
+        ((waiting, _),) = patient._spares
+        _until_alive(actor_name(waiting))
+    finally:
+        scenes.close()
+        patient.close()
+        store.close()
+    _until_dead(actor_name(waiting), "a spare outlived its replica's end")
+
+
+def test_another_owner_s_request_leaves_a_scene_s_actor_in_place(ray_cluster):
+    """An actor serves its scene's owner: another owner's request for the same id is a 404
+    (the store has no such scene of theirs), and the actor stays for its own."""
+    import ray
+
+    from service.cluster import NAMESPACE, actor_name
+    from service.cluster.scenes import LEAVE_AFTER
+    from service.errors import NotFound
+
+    _, url, _ = ray_cluster
+    with Client(url) as client:
+        scene = _scene(client)
+        assert scene.step(1).steps == 1
+        actor = ray.get_actor(actor_name(scene.id), namespace=NAMESPACE)
+        node = ray.get(actor.node.remote())
+        with pytest.raises(ray.exceptions.RayTaskError) as raised:
+            ray.get(actor.call.remote("summary", "another-owner", scene.id))
+        assert isinstance(raised.value.cause, NotFound)
+        time.sleep(LEAVE_AFTER + 1.0)
+        assert ray.get(actor.node.remote(), timeout=10) == node, "the actor left"
+        assert scene.step(1).steps == 2
+        scene.delete()
