@@ -7,13 +7,13 @@ On a head (no CPUs) and two worker nodes of 1 CPU, one replica (0.4 CPU), scene 
 1. **Requests for unknown scene ids** (``GET /v1/scenes/<id>``, ``--unknown`` of them):
    each answer's status and seconds, and the actors alive after them named for those ids.
 2. **A scene's first step** against its next steps, for ``--scenes`` one-body scenes (an
-   icosphere dropped on a plane), one after another; the last one created after
-   ``--settle`` seconds (a deployment up for a while). With ``--spares 0`` the first step
-   waits for the scene's actor to start (a process, the imports, the kernels, the scene
-   rebuilt from the store); with the default (``MRDEM_SCENE_SPARES``, 1) the scene takes
-   the replica's spare actor, started ahead, when it has one running.
+   icosphere dropped on a plane), one after another, ``--settle`` seconds apart. With
+   ``--spares 0`` each first step waits for the scene's actor to start (a process, the
+   imports, the kernels, the scene rebuilt from the store); with the default
+   (``MRDEM_SCENE_SPARES``, 1) the first scene's does, and each later scene takes the spare
+   actor its replica started when it created the one before.
 
-    .venv/bin/python benchmarks/cluster_scenes.py [--scenes 3] [--unknown 4] [--settle 10]
+    .venv/bin/python benchmarks/cluster_scenes.py [--scenes 3] [--unknown 4] [--settle 5]
         [--spares N]
 
 Writes ``bench-results/cluster-scenes.json``.
@@ -47,12 +47,13 @@ OUT = ROOT / "bench-results"
 
 
 def first_steps(url: str, scenes: int, settle: float, steps: int = 5) -> list[dict]:
-    """Per scene: seconds to create it, its first step, its next ``steps`` steps."""
+    """Per scene (``settle`` seconds apart): seconds to create it, its first step, its next
+    ``steps`` steps."""
     rows = []
     with Client(url, timeout=120) as client:
         mesh = client.upload_mesh(shapes.icosphere(2, radius=0.5), epsilon=0.05).id
         for k in range(scenes):
-            if k == scenes - 1 and settle > 0:
+            if k > 0:
                 time.sleep(settle)
             start = time.perf_counter()
             scene = client.create_scene(
@@ -74,7 +75,6 @@ def first_steps(url: str, scenes: int, settle: float, steps: int = 5) -> list[di
                     "create_s": created - start,
                     "first_step_s": first - created,
                     "next_steps_s": later,
-                    "after_settle": k == scenes - 1 and settle > 0,
                 }
             )
             print(
@@ -114,7 +114,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=3)
     parser.add_argument("--unknown", type=int, default=4)
-    parser.add_argument("--settle", type=float, default=10.0)
+    parser.add_argument("--settle", type=float, default=5.0, help="seconds between scenes")
     parser.add_argument(
         "--spares", type=int, default=None, help="MRDEM_SCENE_SPARES (default: the setting's)"
     )

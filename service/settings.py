@@ -114,9 +114,9 @@ class Settings(BaseSettings):
     scene_spares: int = Field(
         1,
         ge=0,
-        description="scene actors each replica keeps started ahead, their kernels loaded, for"
-        " the next scenes it creates: a new scene's first step finds its actor running (each"
-        " holds MRDEM_SCENE_CPUS while it waits; 0: none)",
+        description="scene actors a replica starts ahead, their kernels loaded, each time it"
+        " creates a scene, for its next ones: a new scene's first step finds its actor running"
+        " (each holds MRDEM_SCENE_CPUS while it waits, and leaves when idle; 0: none)",
     )
     split_pairs: int = Field(
         2000, ge=1, description="contacts requests of at least this many pairs run as Ray tasks"

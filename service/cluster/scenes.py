@@ -1,4 +1,4 @@
-"""Scenes as Ray actors: each scene lives in an actor named by its owner and id, which keeps
+"""Scenes as Ray actors: each scene lives in an actor named by its id, which keeps
 the engine scene (and its warm starts) between step requests, and stores the state on every
 acknowledged step (:meth:`LiveScenes.saved <service.scenes.LiveScenes.saved>`, compare and
 set). Any replica reaches a scene's actor by name; when the actor is gone (its node died,
@@ -11,18 +11,19 @@ So one is made only for a scene in the store (an unknown id is a 404 from the re
 one whose scene is gone from the store leaves after its 404.
 
 Starting an actor takes seconds (a process, the imports, the store opened, Numba's first
-dispatch and the scene's kernels loaded: 2.2–2.5 s on a 2-vCPU VM, measured), which a
-scene's first step would wait for. So each replica keeps ``MRDEM_SCENE_SPARES`` actors
-started ahead, their kernels loaded (:func:`engine.warm_scene`), each named by an id no
-scene has yet; a new scene takes one's id (:meth:`ActorScenes.new_id`) and its first step
-finds its actor running. The replica's calls keep its spares from leaving while idle; a
-replica gone, they leave after ``MRDEM_SCENE_IDLE`` seconds as any idle actor does.
+dispatch and the scene's kernels loaded: a scene's first step took 2.1–2.2 s on a 2-vCPU
+VM, its next ones 15–23 ms, measured). So a replica that creates a scene starts
+``MRDEM_SCENE_SPARES`` actors ahead for its next ones, their kernels loaded
+(:func:`engine.warm_scene`), each named by an id no scene has yet; the next new scene takes
+one's id (:meth:`ActorScenes.new_id`) and its first step finds its actor running (0.16–0.20
+s, measured). A spare not taken leaves after ``MRDEM_SCENE_IDLE`` seconds, as any idle
+actor: a deployment that creates no scenes holds no spare (their CPUs stay free for tasks
+and replicas), and a replica gone leaves none behind for long.
 """
 
 from __future__ import annotations
 
 import contextlib
-import logging
 import threading
 import time
 import uuid
@@ -51,8 +52,6 @@ HANDLES = 4096  # scene actors' handles a replica keeps (least recently used dro
 LEAVE_AFTER = 0.5  # seconds an actor whose scene is gone waits to leave (its 404 sent)
 SPARE_CHECK = 0.1  # seconds a replica waits for a spare's answer before it counts as starting
 _GONE = (ActorDiedError, ActorUnavailableError)
-
-log = logging.getLogger("mrdem.cluster")
 
 
 def actor_name(scene_id: str) -> str:
@@ -135,51 +134,30 @@ class ActorScenes:
         self._lock = threading.Lock()
         self.recreate_for = 120.0  # seconds a call goes on recreating a scene's dead actor
         self._spares: list[tuple[str, object]] = []  # (scene id, actor), started ahead
-        self._closed = threading.Event()
-        if spares:
-            with self._lock:
-                self._fill()
-            if idle > 0:  # a spare waits for its scene as long as it takes: kept from leaving
-                threading.Thread(target=self._keep_spares, daemon=True).start()
+        self._closed = False
 
     def new_id(self) -> str:
-        """The id of a scene about to be created: a spare's (its actor started, or starting),
-        the spare then replaced; a random one when there is none (or every spare died: its
-        node did)."""
-        for _ in range(self.spares + 1):  # a dead one's replacement may be taken: it starts
+        """The id of a scene about to be created: a spare's (its actor running, or starting),
+        else a random one (no spare yet; or each has left, idle, or died with its node);
+        spares then started up to ``spares`` for the next scenes."""
+        scene_id = None
+        while scene_id is None:
             with self._lock:
                 if not self._spares:
                     break
-                scene_id, handle = self._spares.pop(0)
-                self._fill()
+                candidate, handle = self._spares.pop(0)
             if _alive(handle):
-                return scene_id
-        return uuid.uuid4().hex
-
-    def _fill(self) -> None:
-        """Spares started up to ``spares`` (``_lock`` held)."""
-        while len(self._spares) < self.spares and not self._closed.is_set():
-            scene_id = uuid.uuid4().hex
-            self._spares.append((scene_id, self._create(actor_name(scene_id), warm=True)))
-
-    def _keep_spares(self) -> None:
-        """Every third of ``idle``: each spare called (its idle clock starts again), a dead
-        one replaced."""
-        period = max(0.5, min(self.idle / 3, 60.0))
-        while not self._closed.wait(period):
-            with self._lock:
-                spares = list(self._spares)
-            dead = [entry for entry in spares if not _alive(entry[1])]
-            with self._lock:
-                self._spares = [entry for entry in self._spares if entry not in dead]
-                self._fill()
-            for scene_id, _ in dead:
-                log.info("a spare scene actor (%s) died; another started", scene_id)
+                scene_id = candidate
+        with self._lock:
+            while len(self._spares) < self.spares and not self._closed:
+                spare = uuid.uuid4().hex
+                self._spares.append((spare, self._create(actor_name(spare), warm=True)))
+        return scene_id or uuid.uuid4().hex
 
     def close(self) -> None:
         """The spares withdrawn (the replica stops); the scenes' actors stay."""
-        self._closed.set()
         with self._lock:
+            self._closed = True
             spares, self._spares = self._spares, []
         for _, handle in spares:
             with contextlib.suppress(RayActorError):  # gone already

@@ -44,12 +44,13 @@ def _until_alive(name: str, seconds: float = 60.0) -> None:
         time.sleep(0.2)
 
 
-def _scene_actors() -> set[str]:
-    """The names of the scene actors alive."""
+def _scene_actors(starting: bool = False) -> set[str]:
+    """The names of the scene actors alive (and, ``starting``, of those still starting)."""
     from ray.util.state import list_actors
 
-    alive = list_actors(filters=[("state", "=", "ALIVE")], limit=10_000)
-    return {a.name for a in alive if a.class_name == "SceneActor"}
+    states = {"ALIVE", "PENDING_CREATION", "DEPENDENCIES_UNREADY"} if starting else {"ALIVE"}
+    actors = list_actors(limit=10_000)
+    return {a.name for a in actors if a.class_name == "SceneActor" and a.state in states}
 
 
 def _scene(client: Client):
@@ -159,33 +160,31 @@ def test_a_scene_whose_actor_finds_no_cpus_is_answered_503_and_the_actor_withdra
 
 
 def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
-    """Each replica keeps a spare actor started (``MRDEM_SCENE_SPARES``): a new scene takes
-    one's id, its first step is answered by that actor, and the replica starts another."""
+    """A replica that creates a scene starts a spare actor for its next one
+    (``MRDEM_SCENE_SPARES``): once two scenes were made (whichever replicas took them), the
+    next one takes a spare's id and its first step is answered by that actor."""
     from service.cluster import actor_name
 
     _, url, _ = ray_cluster
-    deadline = time.monotonic() + 60
-    while not (before := _scene_actors()):  # the replicas' spares, started with them
-        assert time.monotonic() < deadline, "no replica started a spare"
-        time.sleep(0.5)
     with Client(url) as client:
+        before = _scene_actors(starting=True)
+        made = [_scene(client) for _ in range(2)]  # each creation starts one spare
+        deadline = time.monotonic() + 30
+        while len(spares := _scene_actors(starting=True) - before) < 2:  # heard of late
+            assert time.monotonic() < deadline, spares
+            time.sleep(0.2)
         scene = _scene(client)
-        assert actor_name(scene.id) in before, (scene.id, before)
+        assert actor_name(scene.id) in spares, (scene.id, spares)
         assert scene.step(1).steps == 1
-        scene.delete()  # its actor too: the CPUs back for the tests after
-    deadline = time.monotonic() + 60
-    while not _scene_actors() - before:
-        assert time.monotonic() < deadline, "no spare started in its place"
-        time.sleep(0.5)
+        for each in [*made, scene]:
+            each.delete()  # their actors too: the CPUs back for the tests after
 
 
-def test_spares_are_kept_taken_replaced_and_withdrawn(ray_cluster):
-    """A replica's spare outlives ``MRDEM_SCENE_IDLE`` (its replica calls it); one taken
-    for a scene that never came leaves when idle; a dead one is not handed out; the
-    replica's end withdraws its spares (here: those of a replica whose actors would wait
-    600 s idle)."""
-    import ray
-
+def test_spares_are_started_taken_left_and_withdrawn(ray_cluster):
+    """A spare is started when a scene is created (none before: no CPUs held by a replica
+    that makes no scenes); the next scene takes it; one no scene takes leaves when idle,
+    and is not handed out then; the replica's end withdraws its spares (here: those of a
+    replica whose actors would wait 600 s idle)."""
     from service.cluster import ActorScenes, actor_name
     from service.store import open_store
 
@@ -194,17 +193,17 @@ def test_spares_are_kept_taken_replaced_and_withdrawn(ray_cluster):
     scenes = ActorScenes(store, settings, cpus=0.5, idle=1.5, spares=1)
     patient = ActorScenes(store, settings, cpus=0.5, idle=600.0, spares=1)
     try:
-        ((first, _),) = scenes._spares  # (its id, its actor)
-        _until_alive(actor_name(first))
-        time.sleep(6.0)  # four times its idle time
-        assert _states(actor_name(first)) == {"ALIVE"}, "the spare did not outlive its idle time"
-        kept = scenes.new_id()
-        assert kept == first
-        ((replacement, handle),) = scenes._spares  # started when the first was taken
-        ray.kill(handle, no_restart=True)
-        _until_dead(actor_name(replacement))
-        assert scenes.new_id() != replacement  # a dead spare is not handed out
-        _until_dead(actor_name(kept), "a spare taken, its scene never made, stayed")
+        assert not scenes._spares
+        cold = scenes.new_id()
+        assert _states(actor_name(cold)) == set()  # no spare yet: an id of no actor
+        ((spare, _),) = scenes._spares  # (its id, its actor), started for the next scene
+        _until_alive(actor_name(spare))
+        assert scenes.new_id() == spare
+        ((idle, _),) = scenes._spares
+        _until_alive(actor_name(idle))
+        _until_dead(actor_name(idle), "a spare no scene took stayed")
+        assert scenes.new_id() != idle  # gone: not handed out
+        patient.new_id()
         ((waiting, _),) = patient._spares
         _until_alive(actor_name(waiting))
     finally:
