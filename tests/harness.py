@@ -8,6 +8,8 @@ helpers for msgpack bodies and RFC 9457 problems."""
 from __future__ import annotations
 
 import asyncio
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -220,3 +222,15 @@ def near_pairs(mesh_ids, n: int, seed: int) -> dict:
         "position_b": d,
         "orientation_b": q,
     }
+
+
+def imported(code: str, watched: tuple[str, ...]) -> list[str]:
+    """Run ``code`` in a fresh Python process from the repository root: the words it printed,
+    then the names of ``watched`` (modules) it imported — a process's imports, measured
+    where no other test has imported anything yet."""
+    probe = f"{code}\nimport sys\nprint(' '.join(m for m in {watched!r} if m in sys.modules))"
+    found = subprocess.run(
+        [sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert found.returncode == 0, found.stderr
+    return found.stdout.split()

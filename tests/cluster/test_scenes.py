@@ -170,10 +170,11 @@ def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
         before = _scene_actors(starting=True)
         made = [_scene(client) for _ in range(2)]  # each creation starts one spare
         deadline = time.monotonic() + 30
-        while len(spares := _scene_actors(starting=True) - before) < 2:  # heard of late
-            assert time.monotonic() < deadline, spares
+        while len(_scene_actors(starting=True) - before) < 2:  # the state API hears late
+            assert time.monotonic() < deadline, _scene_actors(starting=True) - before
             time.sleep(0.2)
-        scene = _scene(client)
+        spares = _scene_actors(starting=True)  # with those of earlier tests' creations
+        scene = _scene(client)  # its id: a spare's, whichever replica takes it
         assert actor_name(scene.id) in spares, (scene.id, spares)
         assert scene.step(1).steps == 1
         for each in [*made, scene]:
@@ -190,8 +191,8 @@ def test_spares_are_started_taken_left_and_withdrawn(ray_cluster):
 
     _, _, settings = ray_cluster
     store = open_store(settings)
-    scenes = ActorScenes(store, settings, cpus=0.5, idle=1.5, spares=1)
-    patient = ActorScenes(store, settings, cpus=0.5, idle=600.0, spares=1)
+    scenes = ActorScenes(store, settings, settings.scene_cpus, idle=1.5, spares=1)
+    patient = ActorScenes(store, settings, settings.scene_cpus, idle=600.0, spares=1)
     try:
         assert not scenes._spares
         cold = scenes.new_id()

@@ -4,24 +4,10 @@ routers or trimesh — each checked in a fresh process."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
+from harness import imported
 
-ROOT = Path(__file__).resolve().parents[2]
 HEAVY = ("fastapi", "starlette", "service.app", "service.routers", "trimesh", "scipy.spatial")
-
-
-def _imported(code: str) -> list[str]:
-    """The modules of :data:`HEAVY` that ``code`` imported, in a fresh process."""
-    probe = f"{code}\nimport sys\nprint(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
-    found = subprocess.run(
-        [sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, timeout=120
-    )
-    assert found.returncode == 0, found.stderr
-    return found.stdout.split()
 
 
 @pytest.mark.parametrize(
@@ -34,17 +20,18 @@ def _imported(code: str) -> list[str]:
     ],
 )
 def test_the_parts_a_worker_needs_import_alone(code):
-    assert _imported(code) == []
+    assert imported(code, HEAVY) == []
 
 
 def test_the_package_names_still_import():
     """The lazy names are the modules' own; the app then brings FastAPI in."""
-    out = _imported(
+    out = imported(
         "import service, service.app, service.cli, service.settings\n"
         "assert service.create_app is service.app.create_app\n"
         "assert service.serve is service.cli.serve\n"
         "assert service.Settings is service.settings.Settings\n"
-        "from service import Settings, create_app, serve"
+        "from service import Settings, create_app, serve",
+        HEAVY,
     )
     assert "fastapi" in out and "service.app" in out
 
@@ -53,5 +40,6 @@ def test_a_mesh_file_is_read_with_trimesh_imported_then(tmp_path):
     """engine.load_mesh imports trimesh where it reads (no longer at the engine's import)."""
     path = tmp_path / "tetra.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    out = _imported(f"import engine\nmesh = engine.load_mesh({str(path)!r})\nprint(mesh.n_faces)")
+    code = f"import engine\nmesh = engine.load_mesh({str(path)!r})\nprint(mesh.n_faces)"
+    out = imported(code, HEAVY)
     assert out[0] == "4" and "trimesh" in out
