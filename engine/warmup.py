@@ -112,8 +112,8 @@ def warm_scene() -> float:
     """Two steps of a small scene (two boxes stacked on a plane, touching; the default
     scheme): the kernels a process that will step scenes needs first — and Numba's own
     first-dispatch set-up — loaded now (from the cache, or compiled); its seconds. Lighter
-    than :func:`warmup` (measured on a 2-vCPU VM from a warm cache: 0.54 s and 198 MB
-    against 1.1 s and 284 MB): a scene's Ray actor started ahead of its scene
+    than :func:`warmup` (measured in fresh processes on a 2-vCPU VM from a warm cache: 0.54–0.69
+    s and 198 MB peak against 1.0–1.1 s and 285 MB): a scene's Ray actor started ahead of its scene
     (``service.cluster.scenes``) calls it."""
     start = time.perf_counter()
     scene = Scene(gravity=(0.0, 0.0, -9.81))

@@ -3,7 +3,7 @@ batched contact queries and scene steps over HTTP. Imports engine, never clients
 
 The names below are loaded on first use (PEP 562): a process that needs only part of the
 service — a scene's actor on a Ray node, a contacts task — does not import FastAPI and
-every router (about 0.5 s of its start)."""
+every router (:mod:`mrdem_common.lazy`)."""
 
 from __future__ import annotations
 

@@ -179,7 +179,7 @@ class LiveScenes:
         self._lock = threading.Lock()
 
     def new_id(self) -> str:
-        """An id for a scene about to be created (random: 128 bits)."""
+        """An id for a scene about to be created (random: a uuid4, 122 random bits)."""
         return uuid.uuid4().hex
 
     def add(self, owner: str, scene_id: str, live: LiveScene) -> None:

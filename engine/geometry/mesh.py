@@ -29,7 +29,7 @@ from engine.geometry.repair import (
     repair_arrays,
 )
 
-if TYPE_CHECKING:  # imported where used: its import (scipy, networkx) is ~0.3 s of a start
+if TYPE_CHECKING:  # imported where used: its import (scipy, networkx) is ~0.45 s of a start
     import trimesh
 
 __all__ = ["MassProperties", "Mesh", "load_mesh"]
