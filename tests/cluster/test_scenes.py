@@ -1,6 +1,7 @@
 """service/cluster/scenes.py on a real Ray cluster: scenes' actors made only for scenes in
 the store, leaving when their scene is gone, withdrawn when they find no CPUs, and the spares
-each replica starts ahead so that a new scene's first step finds its actor running."""
+a replica starts when it creates a scene, so that its next scene's first step finds its
+actor running."""
 
 from __future__ import annotations
 
@@ -44,11 +45,11 @@ def _until_alive(name: str, seconds: float = 60.0) -> None:
         time.sleep(0.2)
 
 
-def _scene_actors(starting: bool = False) -> set[str]:
-    """The names of the scene actors alive (and, ``starting``, of those still starting)."""
+def _scene_actors() -> set[str]:
+    """The names of the scene actors alive or still starting."""
     from ray.util.state import list_actors
 
-    states = {"ALIVE", "PENDING_CREATION", "DEPENDENCIES_UNREADY"} if starting else {"ALIVE"}
+    states = {"ALIVE", "PENDING_CREATION", "DEPENDENCIES_UNREADY"}
     actors = list_actors(limit=10_000)
     return {a.name for a in actors if a.class_name == "SceneActor" and a.state in states}
 
@@ -167,13 +168,13 @@ def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
 
     _, url, _ = ray_cluster
     with Client(url) as client:
-        before = _scene_actors(starting=True)
+        before = _scene_actors()
         made = [_scene(client) for _ in range(2)]  # each creation starts one spare
         deadline = time.monotonic() + 30
-        while len(_scene_actors(starting=True) - before) < 2:  # the state API hears late
-            assert time.monotonic() < deadline, _scene_actors(starting=True) - before
+        while len(_scene_actors() - before) < 2:  # the state API hears late
+            assert time.monotonic() < deadline, _scene_actors() - before
             time.sleep(0.2)
-        spares = _scene_actors(starting=True)  # with those of earlier tests' creations
+        spares = _scene_actors()  # with those of earlier tests' creations
         scene = _scene(client)  # its id: a spare's, whichever replica takes it
         assert actor_name(scene.id) in spares, (scene.id, spares)
         assert scene.step(1).steps == 1
