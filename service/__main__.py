@@ -1,6 +1,9 @@
-"""``python -m service``: serve on ``MRDEM_HOST``:``MRDEM_PORT`` (see :class:`Settings`)."""
+"""``python -m service``: serve on ``MRDEM_HOST``:``MRDEM_PORT`` (see :class:`Settings`);
+``mrdem serve`` without its flags."""
 
-from .cli import serve
+import sys
+
+from .cli import main
 
 if __name__ == "__main__":
-    serve()
+    sys.exit(main(["serve"]))

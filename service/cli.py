@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from engine import cli as engine_cli
 
 from .settings import Settings
@@ -79,20 +81,41 @@ def _progress(done: int, total: int, name: str, seconds: float) -> None:
     print(f"\r{_bar(done, total)} {name} ({seconds:.0f} s)", end="", flush=True)
 
 
+def _settings(command: str, **given) -> Settings | None:
+    """The settings from ``MRDEM_*`` and ``given`` (its None values left out); None, once
+    what is wrong with them is printed (each problem with its variable's name)."""
+    try:
+        return Settings(**{k: v for k, v in given.items() if v is not None})
+    except ValidationError as error:
+        for problem in error.errors():
+            where = f"MRDEM_{problem['loc'][0]}".upper() if problem["loc"] else "settings"
+            print(f"mrdem {command}: {where}: {problem['msg']}", file=sys.stderr)
+        return None
+
+
 def _cluster(args) -> int:
     """``mrdem cluster serve``: the service on the Ray cluster at ``--address``."""
     try:
         from .cluster import run
+        from .cluster.deployment import scaling
     except ImportError as exc:
         print(f"mrdem cluster needs Ray: pip install 'mrdem[cluster]' ({exc})", file=sys.stderr)
         return 2
-    given = {
-        "host": args.host,
-        "port": args.port,
-        "replicas": args.replicas,
-        "replica_cpus": args.replica_cpus,
-    }
-    settings = Settings(**{k: v for k, v in given.items() if v is not None})
+    settings = _settings(
+        "cluster serve",
+        host=args.host,
+        port=args.port,
+        replicas=args.replicas,
+        replicas_max=args.replicas_max,
+        replica_cpus=args.replica_cpus,
+    )
+    if settings is None:
+        return 2
+    try:  # before reaching for the cluster
+        scaling(settings, settings.replicas, settings.replica_cpus)
+    except ValueError as error:
+        print(f"mrdem cluster serve: {error}", file=sys.stderr)
+        return 2
     if not (settings.store_url and settings.object_store_url):
         print(
             "mrdem cluster serve: replicas share their store; set MRDEM_STORE_URL"
@@ -130,6 +153,11 @@ def main(argv: list[str] | None = None) -> int:
         "--address", default="auto", help="the Ray cluster (default: auto, the one joined)"
     )
     on_ray.add_argument("--replicas", type=int, help="overrides MRDEM_REPLICAS")
+    on_ray.add_argument(
+        "--replicas-max",
+        type=int,
+        help="overrides MRDEM_REPLICAS_MAX (above --replicas: replicas added and removed by load)",
+    )
     on_ray.add_argument("--replica-cpus", type=float, help="overrides MRDEM_REPLICA_CPUS")
     on_ray.add_argument("--host", help="overrides MRDEM_HOST (Serve's HTTP proxy)")
     on_ray.add_argument("--port", type=int, help="overrides MRDEM_PORT")
@@ -167,8 +195,10 @@ def main(argv: list[str] | None = None) -> int:
         return bench(list(args.names) or list(BENCHMARKS), args.quick)
     if args.command == "cluster":
         return _cluster(args)
-    given = {"host": args.host, "port": args.port, "data_dir": args.data_dir}
-    serve(Settings(**{k: v for k, v in given.items() if v is not None}))
+    settings = _settings("serve", host=args.host, port=args.port, data_dir=args.data_dir)
+    if settings is None:
+        return 2
+    serve(settings)
     return 0
 
 

@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = ["Settings"]
@@ -97,7 +97,38 @@ class Settings(BaseSettings):
     )
 
     # scale-out on Ray (service.cluster; `mrdem cluster serve`)
-    replicas: int = Field(1, ge=1, description="Serve replicas of the app (mrdem cluster serve)")
+    replicas: int = Field(
+        1,
+        ge=1,
+        description="Serve replicas of the app (mrdem cluster serve); with MRDEM_REPLICAS_MAX,"
+        " the fewest",
+    )
+    replicas_max: int | None = Field(
+        None,
+        ge=1,
+        description="the most Serve replicas: above MRDEM_REPLICAS, Serve adds replicas while"
+        " they average more than MRDEM_REPLICA_TARGET_REQUESTS requests in flight and removes"
+        " them when the load falls (unset: always MRDEM_REPLICAS)",
+    )
+    replica_target_requests: float = Field(
+        2.0,
+        gt=0,
+        description="requests in flight per replica that autoscaling aims at (Ray Serve's"
+        " target_ongoing_requests)",
+    )
+    replica_upscale_delay: float = Field(
+        30.0,
+        ge=0,
+        description="seconds the load must stay above the target before a replica is added",
+    )
+    replica_downscale_delay: float = Field(
+        600.0,
+        ge=0,
+        description="seconds the load must stay below the target before a replica is removed",
+    )
+    replica_load_window: float = Field(
+        30.0, gt=0, description="seconds over which the replicas' requests in flight are averaged"
+    )
     replica_cpus: float = Field(
         1.0, gt=0, description="CPUs of each replica (its engine threads: this, rounded)"
     )
@@ -140,6 +171,20 @@ class Settings(BaseSettings):
         description="replicas log every request (Ray Serve's access log; /metrics counts them"
         " either way): off saves a log line's work on every request",
     )
+
+    @model_validator(mode="after")
+    def _replica_range(self):
+        if self.replicas_max is not None and self.replicas_max < self.replicas:
+            raise ValueError(
+                f"MRDEM_REPLICAS_MAX ({self.replicas_max}) is below MRDEM_REPLICAS"
+                f" ({self.replicas}): set it to at least that, or unset it"
+            )
+        return self
+
+    @field_validator("replicas_max", mode="before")
+    @classmethod
+    def _unset_when_empty(cls, value):
+        return None if value == "" else value  # MRDEM_REPLICAS_MAX= (compose's default)
 
     @field_validator("store_url")
     @classmethod

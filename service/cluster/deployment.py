@@ -27,7 +27,7 @@ from ..settings import Settings
 from .batches import RaySplitter
 from .scenes import NAMESPACE, ActorScenes
 
-__all__ = ["APP_NAME", "Ingress", "application", "niceness_warning", "run"]
+__all__ = ["APP_NAME", "Ingress", "application", "niceness_warning", "run", "scaling"]
 
 APP_NAME = "mrdem"
 log = logging.getLogger("mrdem.cluster")
@@ -121,17 +121,46 @@ class Ingress:
         return app
 
 
+def scaling(settings: Settings, replicas: int, cpus: float) -> dict:
+    """The deployment's replica options: ``num_replicas`` (``replicas``), or, where
+    ``settings.replicas_max`` is above ``replicas``, Serve's autoscaling between the two
+    (``MRDEM_REPLICA_TARGET_REQUESTS`` … ``MRDEM_REPLICA_LOAD_WINDOW``); with
+    ``max_ongoing_requests``, the requests a replica takes at once (the others wait in
+    Serve's queue or HAProxy's). :class:`ValueError` for a target a replica cannot reach."""
+    most = max(8, 4 * int(cpus))
+    options: dict = {"max_ongoing_requests": most}
+    top = settings.replicas_max
+    if top is None or top <= replicas:
+        return {**options, "num_replicas": replicas}
+    if settings.replica_target_requests > most:
+        raise ValueError(
+            f"MRDEM_REPLICA_TARGET_REQUESTS ({settings.replica_target_requests:g}) is above the"
+            f" {most} requests a replica of {cpus:g} CPUs takes at once: its load would never"
+            f" reach it; set it to {most} or less"
+        )
+    autoscaling = {
+        "min_replicas": replicas,
+        "initial_replicas": replicas,
+        "max_replicas": top,
+        "target_ongoing_requests": settings.replica_target_requests,
+        "upscale_delay_s": settings.replica_upscale_delay,
+        "downscale_delay_s": settings.replica_downscale_delay,
+        "look_back_period_s": settings.replica_load_window,
+    }
+    return {**options, "autoscaling_config": autoscaling}
+
+
 def application(settings: Settings, replicas: int, cpus: float) -> serve.Application:
-    """The Serve application: ``replicas`` replicas of ``cpus`` CPUs each."""
+    """The Serve application: ``replicas`` replicas of ``cpus`` CPUs each (or between
+    ``replicas`` and ``settings.replicas_max``, by load: :func:`scaling`)."""
     env = {k: os.environ[k] for k in PASSED_ON if k in os.environ}
     if settings.keep_large_blocks:  # one malloc arena: see ARENAS
         env.setdefault("MALLOC_ARENA_MAX", ARENAS)
     deployment = serve.deployment(
         serve.ingress()(Ingress),
         name="mrdem",
-        num_replicas=replicas,
         ray_actor_options={"num_cpus": cpus, "runtime_env": {"env_vars": env}},
-        max_ongoing_requests=max(8, 4 * int(cpus)),
+        **scaling(settings, replicas, cpus),
         health_check_period_s=5,
         logging_config={"enable_access_log": settings.replica_access_log},
     )

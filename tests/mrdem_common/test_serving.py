@@ -26,7 +26,7 @@ def test_a_service_that_exits_is_an_error_with_its_log_tail(tmp_path):
     )
     with pytest.raises(ServiceStartError, match="the service exited with") as error:
         process.start()
-    assert "max_pairs" in str(error.value)  # the settings error, quoted from the log
+    assert "MRDEM_MAX_PAIRS" in str(error.value)  # the settings error, quoted from the log
     assert process.log_path.parent == tmp_path and process.log is None  # closed
     assert process.proc.returncode not in (None, 0)
 

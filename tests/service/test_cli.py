@@ -1,7 +1,13 @@
-"""``mrdem bench``: each script's output in a log, failures counted; ``mrdem upload``."""
+"""``mrdem bench``: each script's output in a log, failures counted; ``mrdem upload``;
+``mrdem serve`` and ``python -m service`` with settings they cannot use: each problem with
+its variable, no traceback."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
+import pytest
 import trimesh
 
 from service.cli import bench, main
@@ -29,3 +35,27 @@ def test_upload_runs_the_client_program(live_service, tmp_path, capfd):
     missing = tmp_path / "missing.stl"
     assert main(["upload", str(missing), "--url", live_service.url]) == 1
     assert "missing.stl" in capfd.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("variable", "value", "said"),
+    [
+        ("MRDEM_PORT", "eighty", "MRDEM_PORT: Input should be a valid integer"),
+        ("MRDEM_MAX_PAIRS", "0", "MRDEM_MAX_PAIRS: Input should be greater than or equal to 1"),
+        ("MRDEM_STORE_URL", "mysql://db", "MRDEM_STORE_URL: Value error, the store URL is a"),
+    ],
+)
+def test_serve_names_the_settings_it_cannot_use(monkeypatch, capsys, variable, value, said):
+    monkeypatch.setenv(variable, value)
+    assert main(["serve"]) == 2
+    assert said in capsys.readouterr().err
+
+
+def test_python_m_service_refuses_bad_settings_without_a_traceback(tmp_path):
+    env = {"MRDEM_REPLICAS": "0", "MRDEM_DATA_DIR": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    refused = subprocess.run(
+        [sys.executable, "-m", "service"], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert refused.returncode == 2
+    assert "mrdem serve: MRDEM_REPLICAS: Input should be greater" in refused.stderr
+    assert "Traceback" not in refused.stderr

@@ -116,6 +116,14 @@ def test_the_cluster_compose_file_runs_the_tested_commands_with_real_settings():
         for variable in service["environment"]:
             if variable.startswith("MRDEM_"):
                 assert variable[len("MRDEM_") :].lower() in fields, f"{variable} is no setting"
+        # the values compose gives when the operator sets nothing (${NAME:-default}) are valid
+        defaults = {
+            variable[len("MRDEM_") :].lower(): re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", str(value))
+            for variable, value in service["environment"].items()
+            if variable.startswith("MRDEM_")
+        }
+        settings = Settings(**defaults)
+        assert settings.replicas == 2 and settings.replicas_max is None
         assert service["environment"]["RAY_SERVE_ENABLE_HA_PROXY"] == "1"  # as tested
         assert service["environment"]["RAY_SERVE_ENABLE_DIRECT_INGRESS"] == "1"
     assert 'pip install ".${EXTRAS:+[$EXTRAS]}"' in DOCKERFILE.read_text()

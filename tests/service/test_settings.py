@@ -37,6 +37,17 @@ def test_bad_settings_are_refused(monkeypatch, name, value):
         Settings()
 
 
+def test_the_most_replicas_is_unset_or_at_least_the_fewest(monkeypatch):
+    monkeypatch.setenv("MRDEM_REPLICAS", "3")
+    monkeypatch.setenv("MRDEM_REPLICAS_MAX", "")  # compose's default when the operator sets none
+    assert Settings().replicas_max is None
+    monkeypatch.setenv("MRDEM_REPLICAS_MAX", "3")
+    assert Settings().replicas_max == 3
+    monkeypatch.setenv("MRDEM_REPLICAS_MAX", "2")
+    with pytest.raises(ValidationError, match=r"MRDEM_REPLICAS_MAX \(2\) is below MRDEM_REPLICAS"):
+        Settings()
+
+
 def test_command_line_lists_serve(capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
