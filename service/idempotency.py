@@ -18,34 +18,21 @@ import hashlib
 import threading
 from collections.abc import AsyncIterator, Iterator
 from contextlib import asynccontextmanager, contextmanager
-from dataclasses import dataclass
 
 from fastapi import Request
 from fastapi.responses import Response
 
-from mrdem_common.codec import packb, unpackb
+from mrdem_common.codec import unpackb
 
 from .codecs import respond
 from .errors import BadRequest, Conflict, Unprocessable
+from .store import Key  # where a step's actor unpickles it without FastAPI
 
 __all__ = ["HEADER", "InFlight", "Key", "key_of", "keyed", "replayed"]
 
 HEADER = "Idempotency-Key"
 REPLAYED = "Idempotent-Replayed"
 _LONGEST = 255
-
-
-@dataclass(frozen=True)
-class Key:
-    """An idempotency key and the fingerprint of the request that came with it."""
-
-    value: str
-    fingerprint: str
-
-    def remember(self, status: int, payload) -> tuple[str, str, int, bytes]:
-        """The row the store keeps with the request's effect: ``(key, fingerprint,
-        status, payload as msgpack)``."""
-        return self.value, self.fingerprint, int(status), packb(payload)
 
 
 def key_of(request: Request, body: bytes) -> Key | None:

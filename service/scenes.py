@@ -278,7 +278,7 @@ class LiveScenes:
 
     def step(self, owner: str, scene_id: str, steps: int, dt: float | None, key=None):
         """Take ``steps`` steps of ``dt`` (None: the scene's) and store the new state (with
-        the answer under the idempotency ``key``, :class:`~service.idempotency.Key`, in
+        the answer under the idempotency ``key``, :class:`~service.store.Key`, in
         the same transaction): ``(answer, each step's statistics)``, or ``(None, …)`` when
         another process stored the key meanwhile (nothing stored: answer the stored one).
         A step leaving a non-finite state undoes the request (422)."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from .blobs import Blobs, FileBlobs, S3Blobs
 from .database import MIGRATIONS, Database, PostgresDatabase, SqliteDatabase
+from .keys import Key
 from .store import ACTIVE, CANCELLED, KeyTaken, Store
 
 __all__ = [
@@ -16,6 +17,7 @@ __all__ = [
     "Blobs",
     "Database",
     "FileBlobs",
+    "Key",
     "KeyTaken",
     "PostgresDatabase",
     "S3Blobs",

@@ -210,7 +210,7 @@ class Store:
     ) -> list:
         """Record a new scene, its state and the trees it uses, in one transaction (with
         ``remember``, an idempotency key's row: :meth:`Key.remember
-        <service.idempotency.Key.remember>`). Returns the trees whose files are gone (their
+        <service.store.Key.remember>`). Returns the trees whose files are gone (their
         meshes deleted meanwhile): then nothing is recorded. :class:`KeyTaken` if the key
         was stored meanwhile: then nothing is recorded either."""
         trees = sorted(set(trees))
