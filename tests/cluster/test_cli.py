@@ -59,9 +59,15 @@ def _replicas_seen(url: str, load: dict, until: int, timeout: float = 120.0) -> 
 
 
 def _replicas_idle(url: str, requests: int = 20) -> set[str]:
-    """The replicas that answer ``requests`` health checks sent one after another."""
+    """The replicas that answer ``requests`` health checks sent one after another (each
+    answered: none is lost while a replica is being removed)."""
+    seen = set()
     with httpx.Client(timeout=30) as http:
-        return {http.get(f"{url}/healthz").headers["X-Mrdem-Replica"] for _ in range(requests)}
+        for _ in range(requests):
+            response = http.get(f"{url}/healthz")
+            assert response.status_code == 200, response.text
+            seen.add(response.headers["X-Mrdem-Replica"])
+    return seen
 
 
 def test_mrdem_cluster_serve_deploys_on_a_ray_cluster_and_scales_with_the_load(
@@ -116,10 +122,9 @@ def test_mrdem_cluster_serve_deploys_on_a_ray_cluster_and_scales_with_the_load(
         pair = {"a": mesh.id, "pose_a": pose, "b": mesh.id, "pose_b": near}
         seen = _replicas_seen(url, {"pairs": [pair] * 200}, until=2)
         assert len(seen) == 2, f"no second replica under load: {dict(seen)}"
-        deadline = time.monotonic() + 120  # the load ended: back to one
+        deadline = time.monotonic() + 120  # the load ended: back to one, every check answered
         while len(idle := _replicas_idle(url)) > 1:
             assert time.monotonic() < deadline, f"still {len(idle)} replicas without load"
-            time.sleep(0.5)
     finally:  # every process of this Ray cluster, at once (a graceful stop takes 30 s)
         for pid in [*descendants(head.pid), head.pid]:
             with contextlib.suppress(ProcessLookupError):
