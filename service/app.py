@@ -20,7 +20,7 @@ from .codecs import BodyLimit
 from .compute import EngineRunner, Warmup
 from .handlers import install_handlers
 from .idempotency import InFlight
-from .metrics import Metrics
+from .metrics import CopyTo, Metrics
 from .openapi import install as install_openapi
 from .routers import contacts, health, jobs, meshes, scenes
 from .scenes import LiveScenes
@@ -38,6 +38,7 @@ def create_app(
     *,
     scene_host: Callable[[Store, Settings], Any] | None = None,
     splitter: Callable[[Store, Settings], BatchSplitter | None] | None = None,
+    metrics_copy: CopyTo | None = None,
 ) -> FastAPI:
     """The service app. When the app starts, the store opens, unfinished tree builds of an
     earlier run are queued again (:class:`BuildJobs`, background threads) and the kernel
@@ -46,7 +47,8 @@ def create_app(
     A cluster (:mod:`service.cluster`) passes what it runs elsewhere: ``scene_host(store,
     settings)`` gives what holds the scenes (default: :class:`LiveScenes`, in this
     process) and ``splitter(store, settings)`` what runs big contacts requests as chunks
-    (default: none)."""
+    (default: none). ``metrics_copy`` records every metric in a copy too (default: none; a
+    cluster's replicas: Ray's metrics, see :class:`~service.metrics.Metrics`)."""
     settings = settings or Settings()
 
     @asynccontextmanager
@@ -87,7 +89,7 @@ def create_app(
         generate_unique_id_function=lambda route: route.name,  # operationId: the function
     )
     app.state.settings = settings
-    app.state.metrics = metrics = Metrics()
+    app.state.metrics = metrics = Metrics(metrics_copy)
     app.state.engine = EngineRunner(settings.engine_concurrency, metrics)
     app.state.warmup = Warmup()
     app.state.in_flight = InFlight()  # Idempotency-Keys whose first request is running

@@ -25,6 +25,7 @@ import engine
 from ..app import create_app
 from ..settings import Settings
 from .batches import RaySplitter
+from .metrics import ray_metric
 from .scenes import NAMESPACE, ActorScenes
 
 __all__ = ["APP_NAME", "Ingress", "application", "niceness_warning", "run", "scaling"]
@@ -109,7 +110,9 @@ class Ingress:
                 settings, settings.split_pairs, settings.split_chunks, settings.task_cpus
             )
 
-        app = create_app(settings, scene_host=scene_host, splitter=splitter)
+        app = create_app(
+            settings, scene_host=scene_host, splitter=splitter, metrics_copy=ray_metric
+        )
         replica = serve.get_replica_context().replica_id.unique_id
 
         @app.middleware("http")

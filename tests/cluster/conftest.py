@@ -46,6 +46,7 @@ def ray_cluster(postgres, s3, tmp_path_factory):
                 "health_check_period_ms": 300,
                 "health_check_failure_threshold": 3,
                 "health_check_timeout_ms": 300,
+                "metrics_report_interval_ms": 1000,  # Ray's metrics exported within ~1 s
             },
         },
     )

@@ -70,6 +70,18 @@ def _replicas_idle(url: str, requests: int = 20) -> set[str]:
     return seen
 
 
+def _forget_cluster(port: int) -> None:
+    """Remove the note ``ray start --head`` left of its cluster (``ray stop`` would): killed,
+    the cluster leaves it behind, and a later ``ray.init()`` on this machine reaches for
+    the dead cluster instead of starting its own."""
+    from ray._common.utils import get_ray_address_file
+
+    note = Path(get_ray_address_file(None))  # /tmp/ray/ray_current_cluster
+    with contextlib.suppress(OSError):
+        if note.read_text().strip().endswith(f":{port}"):
+            note.unlink()
+
+
 def test_mrdem_cluster_serve_deploys_on_a_ray_cluster_and_scales_with_the_load(
     postgres, s3, tmp_path
 ):
@@ -130,6 +142,7 @@ def test_mrdem_cluster_serve_deploys_on_a_ray_cluster_and_scales_with_the_load(
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
         head.wait(60)
+        _forget_cluster(port)
 
 
 def test_mrdem_cluster_serve_needs_the_shared_store(tmp_path):
