@@ -2,9 +2,11 @@
 
 A cold compile is CPU-bound and single-threaded per process (about 5 minutes on one core
 of a 2-core EPYC VM). :func:`warmup` therefore splits the work into *parts* that compile
-mostly disjoint kernels (part 0 builds trees with every fit and runs the contact searches
-and the scene steps; part 1 the triangle-set kernels and :func:`mesh_distance`), ordered so
-that a kernel both need is mostly compiled by one and loaded by the other, and, given
+mostly disjoint kernels (part 0 builds trees with every fit and runs the contact searches;
+part 1 the triangle-set kernels, :func:`mesh_distance`, the broad phase and a step of each
+scheme), ordered so that a kernel both need is mostly compiled by one and loaded by the
+other (measured cold on the 2-vCPU VM, the two at once: 131 and 142 s; with the broad phase
+and the steps in part 0, 158 and 111 s, and ``warmup(2)`` 171 s where it is now 153 s), and, given
 ``workers > 1``, compiles all parts but the first in spawned processes while this process
 compiles the first. The other processes write their machine code into the shared on-disk
 cache (``$NUMBA_CACHE_DIR``), and this process then runs those parts too, loading it.
@@ -46,13 +48,13 @@ __all__ = ["PARTS", "default_workers", "warm_scene", "warm_stamp", "warmup"]
 
 
 def _tree_part() -> None:
-    """Tree builds (every fit), single and batched searches in both precisions, the broad
-    phase and one step of every scheme."""
+    """Tree builds (every fit), single and batched searches in both precisions (float64
+    first: :func:`_triangle_part` steps scenes with them)."""
     for fit in FITS:  # "epsilon" and "paper" run the surrogate_fit kernels
         build_tree(box(), 0.05, fit=fit)
     tree = build_tree(box(), 0.05)
     near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
-    for precision in PRECISIONS:  # first: _triangle_part compiles the flat search meanwhile
+    for precision in reversed(PRECISIONS):  # first: _triangle_part compiles the flat search
         for kernel in KERNELS:
             find_contacts_batch(
                 [(tree, Pose.identity(), tree, near)], kernel=kernel, precision=precision
@@ -69,24 +71,13 @@ def _tree_part() -> None:
                     hierarchy=hierarchy,
                     precision=precision,
                 )
-    many = np.arange(3 * (SMALL_SCENE + 1), dtype=float).reshape(-1, 3)  # the grid path
-    candidate_pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
-    kept = CandidateList()  # a scene's kept list: made, then filtered
-    for _ in range(2):
-        kept.pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
-    scene = Scene(gravity=(0.0, 0.0, -9.81))  # broad phase, forces, motion update
-    scene.add_plane(size=4.0, divisions=2)
-    scene.add_body(box(), position=(0.0, 0.0, 0.505), angular_velocity=(0.0, 0.0, 1.0))
-    scene.add_body(box(), position=(0.3, 0.0, 1.52))
-    with warnings.catch_warnings():  # a synthetic scene: its fast spin may warn of tunnelling
-        warnings.simplefilter("ignore", TunnellingWarning)
-        for scheme in SCHEMES:
-            scene.step(1e-3, scheme)
 
 
 def _triangle_part() -> None:
     """The triangle-set API (distances from sets and from raw float64 and float32 arrays,
-    all-pairs and listed contacts) and :func:`mesh_distance`, in both precisions."""
+    all-pairs and listed contacts) and :func:`mesh_distance`, in both precisions; then the
+    broad phase and one step of every scheme (their searches loaded, by then, from what
+    :func:`_tree_part` compiled)."""
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
     tri32 = tri.astype(np.float32)
     for precision in PRECISIONS:
@@ -101,11 +92,24 @@ def _triangle_part() -> None:
             triangle_contacts(
                 sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
             )
-    # last: _tree_part compiles the tree build meanwhile
+    # _tree_part compiles the tree build meanwhile
     tree = build_tree(box(), 0.05)
     near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
     for precision in PRECISIONS:
         mesh_distance(tree, Pose.identity(), tree, near, precision=precision)
+    many = np.arange(3 * (SMALL_SCENE + 1), dtype=float).reshape(-1, 3)  # the grid path
+    candidate_pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
+    kept = CandidateList()  # a scene's kept list: made, then filtered
+    for _ in range(2):
+        kept.pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
+    scene = Scene(gravity=(0.0, 0.0, -9.81))  # broad phase, forces, motion update
+    scene.add_plane(size=4.0, divisions=2)
+    scene.add_body(box(), position=(0.0, 0.0, 0.505), angular_velocity=(0.0, 0.0, 1.0))
+    scene.add_body(box(), position=(0.3, 0.0, 1.52))
+    with warnings.catch_warnings():  # a synthetic scene: its fast spin may warn of tunnelling
+        warnings.simplefilter("ignore", TunnellingWarning)
+        for scheme in SCHEMES:
+            scene.step(1e-3, scheme)
 
 
 def warm_scene() -> float:
