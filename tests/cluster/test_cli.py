@@ -39,7 +39,11 @@ def _replicas_seen(url: str, load: dict, until: int, timeout: float = 120.0) -> 
     def client() -> None:
         with httpx.Client(timeout=60) as http:
             while not stop.is_set():
-                response = http.post(f"{url}/v1/contacts", json=load)
+                try:
+                    response = http.post(f"{url}/v1/contacts", json=load)
+                except httpx.HTTPError as error:  # said below, not lost with the thread
+                    failed.append(repr(error))
+                    return
                 if response.status_code != 200:
                     failed.append(response.text[:500])
                     return
