@@ -1,7 +1,7 @@
 """An idempotency key as the store keeps it (:class:`Key`), apart from the HTTP handling of
 :mod:`service.idempotency`: a key travels with a step to the process that runs it — a scene's
 Ray actor, which unpickles it — and importing this module brings in no web framework (the
-HTTP module's FastAPI and codecs took a scene's first step on a spare actor 0.11–0.14 s
+HTTP module's FastAPI and codecs took a scene's first step on a spare actor 0.10–0.14 s
 longer, measured on the 2-vCPU VM)."""
 
 from __future__ import annotations

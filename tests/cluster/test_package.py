@@ -20,7 +20,7 @@ def test_an_actor_or_a_task_imports_no_serving(module):
 
 def test_a_steps_idempotency_key_unpickles_without_serving():
     """A step's :class:`~service.store.Key` goes to the scene's actor, which unpickles it:
-    that brings in no web framework (it was FastAPI, the codecs: 0.11–0.14 s of a spare
+    that brings in no web framework (it was FastAPI, the codecs: 0.10–0.14 s of a spare
     actor's first step)."""
     import pickle
 
