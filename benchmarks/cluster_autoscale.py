@@ -135,6 +135,7 @@ def main() -> None:
     parser.add_argument("--haproxy", action="store_true", help="Serve's HAProxy ingress")
     args = parser.parse_args()
     os.environ["RAY_worker_niceness"] = "0"  # noqa: SIM112 (Ray spells it so) as the README
+    os.environ["RAY_idle_worker_killing_time_threshold_ms"] = "600000"  # noqa: SIM112 (README)
     os.environ["RAY_SERVE_REPLICA_AUTOSCALING_METRIC_PUSH_INTERVAL_S"] = str(args.push)
     if args.haproxy:  # before the cluster starts: its processes inherit them
         os.environ["RAY_SERVE_ENABLE_HA_PROXY"] = "1"

@@ -128,6 +128,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     os.environ["RAY_worker_niceness"] = str(args.worker_niceness)  # noqa: SIM112 (Ray spells it so)
+    os.environ["RAY_idle_worker_killing_time_threshold_ms"] = "600000"  # noqa: SIM112 (README)
     out: dict = {"machine": machine(), "args": vars(args)}
     print(f"machine: {out['machine'].get('cpu')}")
     postgres, s3 = PostgresServer(), S3Server()

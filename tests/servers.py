@@ -13,6 +13,7 @@ from mrdem_common.serving import free_port
 
 __all__ = [
     "HAPROXY_INGRESS",
+    "IDLE_WORKERS",
     "descendants",
     "free_port",
     "missing",
@@ -26,6 +27,10 @@ __all__ = [
 #: flags, read by the processes a Ray node starts): what docker/compose.cluster.yaml and the
 #: README's commands set.
 HAPROXY_INGRESS = {"RAY_SERVE_ENABLE_HA_PROXY": "1", "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1"}
+#: how long a node keeps an idle worker, as the README's ``ray start`` sets it
+#: (``service.cluster.batches.IDLE_WORKERS``): its raylet and workers read it from the
+#: environment
+IDLE_WORKERS = {"RAY_idle_worker_killing_time_threshold_ms": "600000"}
 
 
 def missing(what: str):

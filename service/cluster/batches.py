@@ -44,6 +44,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import logging
+import os
 import signal
 import threading
 import time
@@ -61,7 +62,14 @@ from ..search import RunSpeeds, SentPieces, find, merge, split
 from ..settings import Settings
 from ..store import Store, open_store
 
-__all__ = ["RaySplitter", "ranked"]
+__all__ = [
+    "IDLE_WORKERS",
+    "IDLE_WORKERS_MS",
+    "IDLE_WORKERS_VARIABLE",
+    "RaySplitter",
+    "idle_worker_warning",
+    "ranked",
+]
 
 log = logging.getLogger("mrdem.cluster")
 
@@ -78,15 +86,51 @@ def _worker_store(settings: Settings) -> tuple[Store, BankCache]:
         return _WORKER[key]
 
 
-def _ready_worker(settings: Settings) -> float:
+#: The variable that sets how long a Ray node keeps an idle worker once it runs more workers
+#: than it has CPUs (its actors count: replicas, scenes, spares): Ray's default is 1 s, after
+#: which a split request's task on that node waits for a fresh worker (seconds: Python, the
+#: kernels, the store) and the replica searches the whole run itself. Measured (BENCHMARKS.md,
+#: issue 18, ninth session; 2 nodes of 1 CPU, a replica on each, the other replica's request
+#: and 0.6 s between two splits): 743-1,231 ms a split search, 2 of 5 not split, with Ray's
+#: 1 s; 324-379 ms with 10 minutes. The README's ``ray start``, the compose file and
+#: ``mrdem cluster serve``'s own local cluster set it.
+IDLE_WORKERS_VARIABLE = "RAY_idle_worker_killing_time_threshold_ms"
+IDLE_WORKERS_MS = 600_000
+IDLE_WORKERS = f"{IDLE_WORKERS_VARIABLE}={IDLE_WORKERS_MS}"
+_RAY_IDLE_WORKERS_MS = 1000  # Ray's default
+
+
+def idle_worker_warning(idle_ms: int) -> str | None:
+    """What to tell the operator of a node that ends an idle worker after ``idle_ms`` (None
+    when that is at least a minute)."""
+    if idle_ms >= 60_000:
+        return None
+    return (
+        f"it ends an idle worker after {idle_ms / 1000:g} s once it runs more workers than"
+        " CPUs (actors count): after a pause that long, a split request's task there waits"
+        " seconds for a fresh worker and the replica searches the run itself; start the Ray"
+        f" node with {IDLE_WORKERS} (ray start, or the containers' environment)"
+    )
+
+
+def _node_idle_ms() -> int:
+    """This process's node's idle-worker time (ms): its raylet's environment, which the
+    worker inherits, or Ray's default."""
+    try:
+        return int(os.environ.get(IDLE_WORKERS_VARIABLE, _RAY_IDLE_WORKERS_MS))
+    except ValueError:
+        return _RAY_IDLE_WORKERS_MS
+
+
+def _ready_worker(settings: Settings) -> tuple[float, int]:
     """A task that readies a worker of its node for the contacts tasks: the engine imported,
     the store opened (first: it fails sooner), every kernel loaded (from the cache the
-    cluster shares, or compiled); its seconds. The worker goes back to its node's pool,
-    where the next task takes it."""
+    cluster shares, or compiled); ``(its seconds, how long its node keeps an idle worker,
+    ms)``. The worker goes back to its node's pool, where the next task takes it."""
     start = time.perf_counter()
     _worker_store(settings)
     engine.warmup(1)
-    return time.perf_counter() - start
+    return time.perf_counter() - start, _node_idle_ms()
 
 
 def _search_pieces(settings: Settings, meshes, run, pieces, kernel, hierarchy, precision, threads):
@@ -254,7 +298,7 @@ class RaySplitter:
                         ended.append((node, ref))
         for node, ref in ended:
             try:
-                log.info("node %s ready in %.1f s", node, ray.get(ref))
+                seconds, idle_ms = ray.get(ref)
             except RayError as error:
                 log.warning(
                     "readying a worker on node %s failed; its runs are sent still (and"
@@ -262,6 +306,10 @@ class RaySplitter:
                     node,
                     error,
                 )
+                continue
+            log.info("node %s ready in %.1f s", node, seconds)
+            if warning := idle_worker_warning(idle_ms):
+                log.warning("node %s: %s", node, warning)
         with self._lock:
             return [node for node in nodes if node in self._ready]
 

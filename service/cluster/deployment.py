@@ -24,7 +24,7 @@ import engine
 
 from ..app import create_app
 from ..settings import Settings
-from .batches import RaySplitter
+from .batches import IDLE_WORKERS_MS, IDLE_WORKERS_VARIABLE, RaySplitter
 from .metrics import ray_metric
 from .scenes import NAMESPACE, ActorScenes
 
@@ -184,6 +184,8 @@ def run(
     (then the application is deleted)."""
     starts = not address and not os.environ.get("RAY_ADDRESS")  # a new local cluster
     local = {"_system_config": {"worker_niceness": 0}} if starts else {}  # see NICENESS
+    if starts:  # its raylet reads it, and its workers see it (batches.IDLE_WORKERS)
+        os.environ.setdefault(IDLE_WORKERS_VARIABLE, str(IDLE_WORKERS_MS))
     ray.init(address=address, namespace=NAMESPACE, **local)
     serve.start(proxy_location=proxies, http_options={"host": settings.host, "port": settings.port})
     serve.run(

@@ -11,7 +11,7 @@ import time
 
 import httpx
 import pytest
-from servers import HAPROXY_INGRESS, descendants, free_port, missing, process_name
+from servers import HAPROXY_INGRESS, IDLE_WORKERS, descendants, free_port, missing, process_name
 
 NODE = {"num_cpus": 2, "object_store_memory": 10**8}
 
@@ -32,6 +32,7 @@ def ray_cluster(postgres, s3, tmp_path_factory):
 
     os.environ.setdefault("NUMBA_CACHE_DIR", str(tmp_path_factory.mktemp("numba")))
     os.environ.update(HAPROXY_INGRESS)  # before the nodes start: their processes read it
+    os.environ.update(IDLE_WORKERS)
     cluster = Cluster(
         initialize_head=True,
         head_node_args={

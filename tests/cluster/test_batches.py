@@ -64,3 +64,15 @@ def test_a_cancel_while_a_task_runs_is_noted_not_raised():
         _thread.interrupt_main()
         for _ in range(1000):
             pass
+
+
+def test_a_node_that_ends_idle_workers_within_a_minute_is_told_how_to_keep_them():
+    """Ray's default (1 s) and anything under a minute is named, with the variable to set;
+    the README's value is not."""
+    from service.cluster.batches import IDLE_WORKERS, IDLE_WORKERS_MS, idle_worker_warning
+
+    said = idle_worker_warning(1000)
+    assert said is not None and "after 1 s" in said and IDLE_WORKERS in said
+    assert "after 59.999 s" in idle_worker_warning(59_999)
+    assert idle_worker_warning(60_000) is None
+    assert idle_worker_warning(IDLE_WORKERS_MS) is None

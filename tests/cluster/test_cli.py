@@ -19,7 +19,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from servers import HAPROXY_INGRESS, descendants, free_port, process_name
+from servers import HAPROXY_INGRESS, IDLE_WORKERS, descendants, free_port, process_name
 
 from clients import Client
 from engine import shapes
@@ -93,7 +93,8 @@ def test_mrdem_cluster_serve_deploys_on_a_ray_cluster_and_scales_with_the_load(
     env = {
         **os.environ,
         **HAPROXY_INGRESS,  # what docker/compose.cluster.yaml sets
-        "RAY_worker_niceness": "0",  # and this (the README's ray start)
+        "RAY_worker_niceness": "0",  # and these (the README's ray start)
+        **IDLE_WORKERS,
         # replicas report their load every half second (Ray's default: 10 s)
         "RAY_SERVE_REPLICA_AUTOSCALING_METRIC_PUSH_INTERVAL_S": "0.5",
         "MRDEM_STORE_URL": postgres.database(),

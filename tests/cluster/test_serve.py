@@ -378,10 +378,10 @@ def test_a_node_gets_runs_once_a_worker_is_readied_there(
     ids, query, expected = _box_batch(url, embedded, 2 * settings.split_pairs, seed=16)
     go = tmp_path / "go"
 
-    def slow_ready(task_settings) -> float:  # a local function: Ray sends it by value
+    def slow_ready(task_settings) -> tuple[float, int]:  # a local function: sent by value
         while not go.exists():
             time.sleep(0.05)
-        return 0.0
+        return 0.0, 600_000  # (seconds, how long its node keeps an idle worker)
 
     monkeypatch.setattr(batches, "_ready_worker", slow_ready)
     store, columns, here = _as_a_replica(settings, query)

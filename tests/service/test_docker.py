@@ -126,4 +126,6 @@ def test_the_cluster_compose_file_runs_the_tested_commands_with_real_settings():
         assert settings.replicas == 2 and settings.replicas_max is None
         assert service["environment"]["RAY_SERVE_ENABLE_HA_PROXY"] == "1"  # as tested
         assert service["environment"]["RAY_SERVE_ENABLE_DIRECT_INGRESS"] == "1"
+        assert service["environment"]["RAY_worker_niceness"] == "0"  # as the README's
+        assert service["environment"]["RAY_idle_worker_killing_time_threshold_ms"] == "600000"
     assert 'pip install ".${EXTRAS:+[$EXTRAS]}"' in DOCKERFILE.read_text()
