@@ -309,7 +309,9 @@ def paired_batch(urls: dict, pairs: int, repeats: int) -> dict:
             "median_s": float(np.median(seconds[name])),
             "search_seconds": searches[name],
             "search_median_s": float(np.median(searches[name])),
+            "server_timing_ms": timings[name].parts(),  # each round's (NaN: not split)
             "server_timing_median_ms": timings[name].medians(),
+            "split_rounds": sum("task" in t for t in timings[name].seen),
         }
     for key, what in (("seconds", "request"), ("search_seconds", "search")):
         ratios = np.array(out[first][key]) / np.array(out[second][key])
@@ -511,8 +513,16 @@ def main() -> None:
         help="the nice value of Ray's worker processes (replicas, tasks, actors):"
         " RAY_worker_niceness, which Ray leaves at 15 unless set",
     )
+    parser.add_argument(
+        "--idle-worker-ms",
+        type=int,
+        default=600_000,
+        help="how long a node keeps an idle worker once it runs more workers than CPUs:"
+        " RAY_idle_worker_killing_time_threshold_ms, as the README sets it (Ray's default: 1000)",
+    )
     args = parser.parse_args()
     os.environ["RAY_worker_niceness"] = str(args.worker_niceness)  # noqa: SIM112 (Ray spells it so)
+    os.environ["RAY_idle_worker_killing_time_threshold_ms"] = str(args.idle_worker_ms)  # noqa: SIM112
     if args.haproxy:  # before the cluster starts: its processes inherit them
         os.environ.update(
             {"RAY_SERVE_ENABLE_HA_PROXY": "1", "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1"}
@@ -695,7 +705,10 @@ def summarise_batch(out: dict, pairs: int) -> None:
         parts = ", ".join(
             f"{name} {ms:.1f}" for name, ms in paired["split"]["server_timing_median_ms"].items()
         )
-        print(f"{pairs:,}-pair batch, paired, split, Server-Timing medians (ms): {parts}")
+        print(
+            f"{pairs:,}-pair batch, paired, split in {paired['split']['split_rounds']} of"
+            f" {len(paired['split']['seconds'])} rounds; Server-Timing medians (ms): {parts}"
+        )
     top = out["batch_ceiling"]
     print(
         f"{pairs:,}-pair batch, no Ray: 1 process {top['one_process_s']:.3f} s,"
