@@ -15,6 +15,7 @@ mkdir -p /tmp/x && tar xJf .devsite/site.tar.xz -C /tmp/x || exit 3
 rm -rf /tmp/x/site/grpc_reflection /tmp/x/site/grpcio_reflection-*; python3 -c "import zipfile,glob; zipfile.ZipFile(glob.glob('.devsite/grpcio_reflection-*.whl')[0]).extractall('/tmp/x/site')" || exit 3
 # PostgreSQL's initdb wants pgserver's libpq: psycopg's, under that name (libpq's ABI is stable)
 ln -sf "$(ls /tmp/x/site/psycopg_binary.libs/libpq-*)" /tmp/x/pg/lib/libpq-084d956f.so.5.16
+chmod -R a+rx /tmp/x/pg/bin  # the pgserver wheel's files come out of its zip without x bits
 fi
 export LD_LIBRARY_PATH=/tmp/x/pg/lib:/tmp/x/site/psycopg_binary.libs
 OUT=${OUT:-bench-results}; mkdir -p "$OUT"
@@ -36,6 +37,10 @@ PYTHONPATH=$PWD:$PYTHONPATH python3 benchmarks/device/warm_wide.py || exit 5
 touch /tmp/x/ready
 echo "ready at $((SECONDS-T0)) s"
 fi
+# what an earlier run stopped by a timeout left (HAProxy holds ports 8404 and 9101 on every
+# address); -x: by process name, not this script's command line
+for name in haproxy raylet gcs_server postgres; do pkill -9 -x $name; done
+rm -rf /tmp/haproxy-serve
 echo "== $TAG: MRDEM_SPLIT_PIECES=${MRDEM_SPLIT_PIECES:-} $*"
 touch /tmp/x/before-$TAG
 python3 benchmarks/cluster.py --haproxy --replicas ${REPLICAS:-1,2,4,8} --clients ${CLIENTS:-32} --client-processes ${PROCS:-8} --seconds ${SECS:-10} "$@" > $OUT/cluster-$TAG.log 2>&1
