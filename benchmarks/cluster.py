@@ -23,7 +23,9 @@ store, the app deployed on Ray Serve (``service.cluster.application``).
    two apps side by side, a replica that searches alone (``MRDEM_SPLIT_CHUNKS=1``) and one
    that splits, sent the batch in turn, request by request: each round's ratio compares
    the two under the same conditions (on a VM whose speed drifts, the separate clusters'
-   figures moved 1.46–1.90× between two runs of the same code).
+   figures moved 1.46–1.90× between two runs of the same code). ``--pause`` waits before
+   each request; with ``--idle-worker-ms 1000`` (Ray's default, not the README's) the task's
+   node, which also runs the other app's replica, ends its idle worker meanwhile.
 4. **A node slowed by other work** (``slowed_node``): the split's search, request by request,
    once a process spins on the CPU of the task's node.
 
@@ -271,9 +273,10 @@ def big_batch(url: str, pairs: int, repeats: int, splits: bool, settle: float = 
     }
 
 
-def paired_batch(urls: dict, pairs: int, repeats: int) -> dict:
+def paired_batch(urls: dict, pairs: int, repeats: int, pause: float = 0.0) -> dict:
     """The big batch sent to each of ``urls`` (name → app) in turn, one request each per
-    round, ``repeats`` rounds after a warm request each: the apps see the machine alike
+    round, ``repeats`` rounds after a warm request each, ``pause`` seconds before each
+    request: the apps see the machine alike
     (its drifting speed, its neighbours), so each round's ratio compares like with like.
     Per app: each request's seconds and search seconds, the medians; the median of the
     rounds' ratios of the first app's to the second's."""
@@ -294,6 +297,7 @@ def paired_batch(urls: dict, pairs: int, repeats: int) -> dict:
             del timings[name].seen[:]
         for _ in range(repeats):
             for name, client in clients.items():
+                time.sleep(pause)
                 start = time.perf_counter()
                 answer = client.find_contacts([meshes[name]], **query)
                 seconds[name].append(time.perf_counter() - start)
@@ -311,7 +315,7 @@ def paired_batch(urls: dict, pairs: int, repeats: int) -> dict:
             "search_median_s": float(np.median(searches[name])),
             "server_timing_ms": timings[name].parts(),  # each round's (NaN: not split)
             "server_timing_median_ms": timings[name].medians(),
-            "split_rounds": sum("task" in t for t in timings[name].seen),
+            "task_rounds": sum(t.get("task", 0.0) > 0 for t in timings[name].seen),
         }
     for key, what in (("seconds", "request"), ("search_seconds", "search")):
         ratios = np.array(out[first][key]) / np.array(out[second][key])
@@ -514,6 +518,13 @@ def main() -> None:
         " RAY_worker_niceness, which Ray leaves at 15 unless set",
     )
     parser.add_argument(
+        "--pause",
+        type=float,
+        default=0.0,
+        help="seconds before each request of the paired batch (a node's idle worker: see"
+        " --idle-worker-ms)",
+    )
+    parser.add_argument(
         "--idle-worker-ms",
         type=int,
         default=600_000,
@@ -621,7 +632,7 @@ def main() -> None:
                     )
                     for name, chunks in (("alone", 1), ("split", 2))
                 }
-                out["batch_paired"] = paired_batch(urls, args.pairs, args.repeats)
+                out["batch_paired"] = paired_batch(urls, args.pairs, args.repeats, args.pause)
                 print(f"{args.pairs:,}-pair batch, paired: {out['batch_paired']}")
             finally:
                 cluster.close()
@@ -706,8 +717,8 @@ def summarise_batch(out: dict, pairs: int) -> None:
             f"{name} {ms:.1f}" for name, ms in paired["split"]["server_timing_median_ms"].items()
         )
         print(
-            f"{pairs:,}-pair batch, paired, split in {paired['split']['split_rounds']} of"
-            f" {len(paired['split']['seconds'])} rounds; Server-Timing medians (ms): {parts}"
+            f"{pairs:,}-pair batch, paired, a task searched in {paired['split']['task_rounds']}"
+            f" of {len(paired['split']['seconds'])} rounds; Server-Timing medians (ms): {parts}"
         )
     top = out["batch_ceiling"]
     print(
