@@ -10,11 +10,13 @@ On a head (no CPUs) and two worker nodes of 1 CPU, one replica (0.4 CPU), scene 
    icosphere dropped on a plane), one after another, ``--settle`` seconds apart. With
    ``--spares 0`` each first step waits for the scene's actor to start (a process, the
    imports, the kernels, the scene rebuilt from the store); with the default
-   (``MRDEM_SCENE_SPARES``, 1) the first scene's does, and each later scene takes the spare
-   actor its replica started when it created the one before.
+   (``MRDEM_SCENE_SPARES``, 1) the first scene's does, and each later scene takes a spare
+   actor started when the one before was created.
 
     .venv/bin/python benchmarks/cluster_scenes.py [--scenes 3] [--unknown 4] [--settle 5]
-        [--spares N] [--worker-niceness 0]
+        [--spares N] [--replicas 1] [--scene-cpus 0.5] [--worker-niceness 0]
+
+At the end: the scene actors alive (the scenes' and the spares').
 
 Writes ``bench-results/cluster-scenes.json``.
 """
@@ -111,6 +113,19 @@ def unknown_scenes(url: str, count: int, timeout: float = 30.0) -> dict:
     return {"statuses": statuses, "seconds": seconds, "scene_actors_alive": len(actors)}
 
 
+def scene_actors_alive(settle: float = 5.0) -> dict[str, int]:
+    """The scene actors not dead ``settle`` seconds after the last scene, by state (spares
+    started on its creation included): those of the scenes made, and the spares."""
+    from ray.util.state import list_actors
+
+    time.sleep(settle)
+    states: dict[str, int] = {}
+    for actor in list_actors(filters=[("class_name", "=", "SceneActor")], limit=10_000):
+        if actor.state != "DEAD":
+            states[actor.state] = states.get(actor.state, 0) + 1
+    return states
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=3)
@@ -119,6 +134,9 @@ def main() -> None:
     parser.add_argument(
         "--spares", type=int, default=None, help="MRDEM_SCENE_SPARES (default: the setting's)"
     )
+    parser.add_argument("--replicas", type=int, default=1, help="the scenes go round them")
+    parser.add_argument("--replica-cpus", type=float, default=0.4)
+    parser.add_argument("--scene-cpus", type=float, default=0.5)
     parser.add_argument(
         "--worker-niceness",
         type=int,
@@ -143,9 +161,12 @@ def main() -> None:
         cluster = RayCluster(2, 1, store)
         try:
             spares = {} if args.spares is None else {"scene_spares": args.spares}
-            url = cluster.deploy(1, 0.4, scene_cpus=0.5, **spares)
+            url = cluster.deploy(
+                args.replicas, args.replica_cpus, scene_cpus=args.scene_cpus, **spares
+            )
             out["unknown"] = unknown_scenes(url, args.unknown)
             out["scenes"] = first_steps(url, args.scenes, args.settle)
+            out["scene_actors_alive"] = scene_actors_alive()
         finally:
             cluster.close()
     finally:
@@ -160,12 +181,17 @@ def main() -> None:
             f" median {np.median(later) * 1e3:.1f} ms"
             f" ({min(later) * 1e3:.1f}-{max(later) * 1e3:.1f})"
         )
-    unknown = out["unknown"]
     print(
-        f"{len(unknown['statuses'])} unknown scene ids: {unknown['statuses']},"
-        f" {min(unknown['seconds']):.3f}-{max(unknown['seconds']):.3f} s;"
-        f" actors of those ids alive after: {unknown['scene_actors_alive']}"
+        f"scene actors not dead after {len(out['scenes'])} scenes through {args.replicas}"
+        f" replica(s), by state: {out['scene_actors_alive']}"
     )
+    unknown = out["unknown"]
+    if unknown["statuses"]:
+        print(
+            f"{len(unknown['statuses'])} unknown scene ids: {unknown['statuses']},"
+            f" {min(unknown['seconds']):.3f}-{max(unknown['seconds']):.3f} s;"
+            f" actors of those ids alive after: {unknown['scene_actors_alive']}"
+        )
     OUT.mkdir(exist_ok=True)
     (OUT / "cluster-scenes.json").write_text(json.dumps(out, indent=2, default=str))
     print(f"wrote {OUT / 'cluster-scenes.json'}")

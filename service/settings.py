@@ -145,9 +145,10 @@ class Settings(BaseSettings):
     scene_spares: int = Field(
         1,
         ge=0,
-        description="scene actors a replica starts ahead, their kernels loaded, each time it"
-        " creates a scene, for its next ones: a new scene's first step finds its actor running"
-        " (each holds MRDEM_SCENE_CPUS while it waits, and leaves when idle; 0: none)",
+        description="scene actors started ahead, their kernels loaded, from the first scene's"
+        " creation on, for the next new scenes: a new scene's first step finds its actor"
+        " running (one pool for the deployment's replicas; each spare holds MRDEM_SCENE_CPUS"
+        " while it waits, and leaves when idle; 0: none)",
     )
     split_pairs: int = Field(
         2000, ge=1, description="contacts requests of at least this many pairs run as Ray tasks"

@@ -12,19 +12,23 @@ one whose scene is gone from the store leaves after its 404.
 
 Starting an actor takes seconds (a process, the imports, the store opened, Numba's first
 dispatch and the scene's kernels loaded: a scene's first step took 2.1–2.2 s on a 2-vCPU
-VM, its next ones 15–23 ms, measured). So a replica that creates a scene starts
-``MRDEM_SCENE_SPARES`` actors ahead for its next ones, their kernels loaded
-(:func:`engine.warm_scene`), each named by an id no scene has yet; the next new scene takes
-one's id (:meth:`ActorScenes.new_id`), the spare loads the scene as soon as it is stored
+VM, its next ones 15–23 ms, measured). So ``MRDEM_SCENE_SPARES`` actors are started ahead
+for the next new scenes, their kernels loaded (:func:`engine.warm_scene`), each named by an
+id no scene has yet, and held by one :class:`SparePool` that every replica of the
+deployment shares (a detached actor of no CPUs: however many replicas Serve adds under
+load, the spares stay that many). The next new scene, through any replica, takes one's id
+(:meth:`ActorScenes.new_id`), the spare loads the scene as soon as it is stored
 (:meth:`ActorScenes.add`), and its first step finds its actor running (0.05–0.08 s,
-measured, against 2 s). A spare not taken leaves after ``MRDEM_SCENE_IDLE`` seconds, as any idle
-actor: a deployment that creates no scenes holds no spare (their CPUs stay free for tasks
-and replicas), and a replica gone leaves none behind for long.
+measured, against 2 s). The pool is made, and starts its spares, on the first scene's
+creation: a deployment that creates no scenes holds no spare (their CPUs stay free for
+tasks and replicas). A spare not taken leaves after ``MRDEM_SCENE_IDLE`` seconds, as any idle
+actor, and the pool, with its spares, after as long without a scene created.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import threading
 import time
 import uuid
@@ -46,12 +50,13 @@ from ..scenes import LiveScenes
 from ..settings import Settings
 from ..store import Store, open_store
 
-__all__ = ["ActorScenes", "SceneActor", "actor_name"]
+__all__ = ["ActorScenes", "SceneActor", "SparePool", "actor_name", "pool_name"]
 
 NAMESPACE = "mrdem"
 HANDLES = 4096  # scene actors' handles a replica keeps (least recently used dropped)
 LEAVE_AFTER = 0.5  # seconds an actor whose scene is gone waits to leave (its 404 sent)
-SPARE_CHECK = 0.1  # seconds a replica waits for a spare's answer before it counts as starting
+SPARE_CHECK = 0.1  # seconds to wait for an actor's answer before it counts as starting
+SPARE_WAIT = 0.5  # seconds a replica waits for the pool's spare (longer: none this time)
 _GONE = (ActorDiedError, ActorUnavailableError)
 
 
@@ -118,6 +123,79 @@ class SceneActor:
         return ray.get_runtime_context().get_node_id()
 
 
+def pool_name(actor_settings: Settings, cpus: float, idle: float, spares: int) -> str:
+    """The name of the spare pool of replicas whose scenes' actors are made alike (the same
+    store, CPUs, idle time, spares): one deployment's replicas share one; another
+    deployment on the cluster, over another store say, has its own."""
+    made = f"{actor_settings.model_dump_json()}\0{cpus}\0{idle}\0{spares}"
+    return f"spares-{hashlib.blake2b(made.encode(), digest_size=8).hexdigest()}"
+
+
+class SparePool:
+    """Spare scene actors for the replicas of a deployment: :meth:`take` hands one out (its
+    scene id and actor) and starts others up to ``count``, one call at a time (an actor:
+    two replicas never take the same spare). Leaves, withdrawing its spares, after
+    ``idle`` seconds without a :meth:`take`; a spare not taken leaves on its own after
+    ``idle`` seconds, and is not handed out then."""
+
+    def __init__(self, actor_settings: Settings, cpus: float, idle: float, count: int) -> None:
+        self.actor_settings, self.cpus, self.idle, self.count = actor_settings, cpus, idle, count
+        self._remote = ray.remote(SceneActor)
+        self._spares: list[tuple[str, object]] = []  # (scene id, actor), oldest first
+        self._lock = threading.Lock()  # the idle thread and the calls
+        self.last = time.monotonic()
+        if idle > 0:
+            threading.Thread(target=self._leave_when_idle, daemon=True).start()
+
+    def take(self, until: float) -> tuple[str, object] | None:
+        """A running (or starting) spare's ``(scene id, actor)``, or None (none yet, or each
+        has left or died with its node, or the call came after ``until``, a ``time.time()``
+        past which the replica no longer waits: a spare is not handed to no one); spares
+        then started up to ``count``."""
+        self.last = time.monotonic()
+        taken = None
+        while taken is None and time.time() < until:
+            with self._lock:
+                if not self._spares:
+                    break
+                candidate = self._spares.pop(0)
+            if _alive(candidate[1]):
+                taken = candidate
+        with self._lock:
+            while len(self._spares) < self.count:
+                spare = uuid.uuid4().hex
+                self._spares.append((spare, self._create(spare)))
+        self.last = time.monotonic()
+        return taken
+
+    def held(self) -> list[str]:
+        """The scene ids of the spares held now (some may have left since)."""
+        with self._lock:
+            return [spare for spare, _ in self._spares]
+
+    def _create(self, spare: str):
+        return self._remote.options(
+            name=actor_name(spare),
+            namespace=NAMESPACE,
+            get_if_exists=True,
+            lifetime="detached",  # not tied to the pool: a taken spare is a scene's actor
+            num_cpus=self.cpus,
+            max_restarts=0,
+        ).remote(self.actor_settings, self.idle, None, True)
+
+    def _leave_when_idle(self) -> None:
+        while True:
+            time.sleep(min(self.idle, 5.0))
+            if time.monotonic() - self.last > self.idle:
+                with self._lock:
+                    spares, self._spares = self._spares, []
+                for _, handle in spares:
+                    with contextlib.suppress(RayActorError):  # gone already
+                        ray.kill(handle, no_restart=True)
+                ray.kill(ray.get_runtime_context().current_actor, no_restart=True)
+                return
+
+
 class ActorScenes:
     """What a replica's routes use in place of :class:`LiveScenes`: the same operations,
     each a call to the scene's actor (created when missing, again when it died)."""
@@ -140,40 +218,75 @@ class ActorScenes:
         self._handles: OrderedDict[str, object] = OrderedDict()  # actor name → handle
         self._lock = threading.Lock()
         self.recreate_for = 120.0  # seconds a call goes on recreating a scene's dead actor
-        self._spares: list[tuple[str, object]] = []  # (scene id, actor), started ahead
+        self.pool = pool_name(self.actor_settings, cpus, idle, spares)  # the spares' holder
+        self._pool_handle = None
+        self._pool_answer = None  # the pool's first answer to this replica, until it came
         self._taken: OrderedDict[str, object] = OrderedDict()  # spares handed out: id → actor
-        self._closed = False
 
     def new_id(self) -> str:
-        """The id of a scene about to be created: a spare's (its actor running, or starting),
-        else a random one (no spare yet; or each has left, idle, or died with its node);
-        spares then started up to ``spares`` for the next scenes."""
-        scene_id = None
-        while scene_id is None:
-            with self._lock:
-                if not self._spares:
-                    break
-                candidate, handle = self._spares.pop(0)
-            if _alive(handle):
-                scene_id = candidate
+        """The id of a scene about to be created: a spare's from the deployment's pool (its
+        actor running, or starting), else a random one (no spare yet; or each has left,
+        idle, or died with its node; or the pool is starting, or could not be reached)."""
+        if self.spares <= 0:
+            return uuid.uuid4().hex
+        taken = None
+        for _ in range(2):  # a pool that died (with its node) is made again, once
+            pool = self._spare_pool()
+            if pool is None:  # not answered yet (starting, its spares too): not waited for
+                break
+            try:
+                until = time.time() + SPARE_WAIT / 2  # after that, the pool hands none
+                taken = ray.get(pool.take.remote(until), timeout=SPARE_WAIT)
+                break
+            except _GONE:
+                with self._lock:
+                    self._pool_handle = self._pool_answer = None
+            except GetTimeoutError:  # busy: none this time
+                break
+        if taken is None:
+            return uuid.uuid4().hex
+        scene_id, handle = taken
+        with self._lock:  # its scene's add() hands it the scene to load
+            self._taken[scene_id] = handle
+            while len(self._taken) > HANDLES:  # scenes never added (a replayed key)
+                self._taken.popitem(last=False)
+        return scene_id
+
+    def _spare_pool(self):
+        """The deployment's :class:`SparePool` once it has answered this replica, else None:
+        the first call gets the pool (made by the first replica that asks) and asks it to
+        start its spares (``take`` of nothing), waiting ``SPARE_CHECK`` seconds for a pool
+        that runs already, not for one to start (a process: seconds)."""
         with self._lock:
-            if scene_id is not None:  # its scene's add() hands it the scene to load
-                self._taken[scene_id] = handle
-                while len(self._taken) > HANDLES:  # scenes never added (a replayed key)
-                    self._taken.popitem(last=False)
-            while len(self._spares) < self.spares and not self._closed:
-                spare = uuid.uuid4().hex
-                self._spares.append((spare, self._create(actor_name(spare), warm=True)))
-        return scene_id or uuid.uuid4().hex
+            wait = 0.0
+            if self._pool_handle is None:
+                self._pool_handle = self._make_pool()
+                self._pool_answer = self._pool_handle.take.remote(0.0)
+                wait = SPARE_CHECK
+            if self._pool_answer is not None:
+                done, _ = ray.wait([self._pool_answer], timeout=wait)
+                if not done:
+                    return None
+                self._pool_answer = None  # answered (or died: the next take finds out)
+            return self._pool_handle
+
+    def _make_pool(self):
+        return (
+            ray.remote(SparePool)
+            .options(
+                name=self.pool,
+                namespace=NAMESPACE,
+                get_if_exists=True,
+                lifetime="detached",  # shared by the replicas, not tied to one
+                num_cpus=0,
+                max_restarts=0,  # one that died is made again by the next replica that asks
+            )
+            .remote(self.actor_settings, self.cpus, self.idle, self.spares)
+        )
 
     def close(self) -> None:
-        """The spares withdrawn (the replica stops); the scenes' actors stay."""
-        with self._lock:
-            self._closed = True
-            spares, self._spares = self._spares, []
-        for _, handle in spares:
-            with contextlib.suppress(RayActorError):  # gone already
-                ray.kill(handle, no_restart=True)
+        """Nothing to withdraw: the scenes' actors stay, and the spares are the pool's
+        (shared by the deployment's replicas; they leave when idle)."""
 
     def actor(self, owner: str, scene_id: str):
         """The scene's actor (the handle this replica holds; else found by name, or created
@@ -214,9 +327,9 @@ class ActorScenes:
                 {"Retry-After": "10"},
             ) from None
 
-    def _create(self, name: str, owner: str | None = None, warm: bool = False):
+    def _create(self, name: str, owner: str):
         """The actor named ``name``, created (or the one another replica created just
-        before) for ``owner``'s scene (None: a spare, see :class:`SceneActor`)."""
+        before) for ``owner``'s scene."""
         return self._remote.options(
             name=name,
             namespace=NAMESPACE,
@@ -224,7 +337,7 @@ class ActorScenes:
             lifetime="detached",  # not tied to the replica that made it
             num_cpus=self.cpus,
             max_restarts=0,  # a dead actor is recreated by the next request, from the store
-        ).remote(self.actor_settings, self.idle, owner, warm)
+        ).remote(self.actor_settings, self.idle, owner)
 
     def _forget(self, scene_id: str) -> None:
         with self._lock:

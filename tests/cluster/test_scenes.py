@@ -1,7 +1,7 @@
 """service/cluster/scenes.py on a real Ray cluster: scenes' actors made only for scenes in
 the store, leaving when their scene is gone, withdrawn when they find no CPUs, and the spares
-a replica starts when it creates a scene, so that its next scene's first step finds its
-actor running."""
+started when a scene is created, held by a pool the replicas share, so that the next
+scene's first step finds its actor running."""
 
 from __future__ import annotations
 
@@ -164,10 +164,10 @@ def _loaded(name: str, seconds: float = 30.0) -> None:
 
 
 def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
-    """A replica that creates a scene starts a spare actor for its next one
-    (``MRDEM_SCENE_SPARES``): of three scenes made through two replicas, two reach the same
-    replica, and the later of those takes a spare's id — its actor exists before any request
-    for the scene — loads the scene before such a request, and answers its first step."""
+    """The first scene made starts a spare actor for the next (``MRDEM_SCENE_SPARES``, held
+    by the replicas' pool): of three scenes made through two replicas, a later one takes a
+    spare's id — its actor exists before any request for the scene — loads the scene before
+    such a request, and answers its first step."""
     import ray
 
     from service.cluster import NAMESPACE, actor_name
@@ -188,37 +188,56 @@ def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
             scene.delete()  # their actors too: the CPUs back for the tests after
 
 
-def test_spares_are_started_taken_left_and_withdrawn(ray_cluster):
-    """A spare is started when a scene is created (none before: no CPUs held by a replica
-    that makes no scenes); the next scene takes it; one no scene takes leaves when idle,
-    and is not handed out then; the replica's end withdraws its spares (here: those of a
-    replica whose actors would wait 600 s idle)."""
-    from service.cluster import ActorScenes, actor_name
+def _held(pool: str, count: int, seconds: float = 60.0) -> list[str]:
+    """The scene ids of the spares the pool named ``pool`` holds, once it holds ``count``."""
+    import ray
+
+    from service.cluster import NAMESPACE
+
+    deadline = time.monotonic() + seconds
+    while True:
+        with contextlib.suppress(ValueError):  # no such actor yet
+            held = ray.get(ray.get_actor(pool, namespace=NAMESPACE).held.remote(), timeout=30)
+            if len(held) == count:
+                return held
+        assert time.monotonic() < deadline, f"the pool does not hold {count} spare(s)"
+        time.sleep(0.2)
+
+
+def test_the_replicas_share_their_spares_which_leave_when_idle(ray_cluster):
+    """Spares are started when a scene is first created (none before: no CPUs held by a
+    deployment that makes no scenes) and held by one pool that the deployment's replicas
+    share: through two replicas' scenes there is still one spare (``spares=1``), and the
+    other replica's next scene takes the spare the first one's started. One that has left
+    is not handed out. The pool, idle, leaves and withdraws its spare."""
+    import ray
+
+    from service.cluster import NAMESPACE, ActorScenes, actor_name
     from service.store import open_store
 
     _, _, settings = ray_cluster
     store = open_store(settings)
-    scenes = ActorScenes(store, settings, settings.scene_cpus, idle=1.5, spares=1)
-    patient = ActorScenes(store, settings, settings.scene_cpus, idle=600.0, spares=1)
+    one, two = (
+        ActorScenes(store, settings, settings.scene_cpus, idle=5.0, spares=1) for _ in range(2)
+    )
     try:
-        assert not scenes._spares
-        cold = scenes.new_id()
+        assert one.pool == two.pool  # the same deployment's replicas
+        assert _states(one.pool) == set()  # no pool, no spare: no scene made yet
+        cold = one.new_id()
         assert _states(actor_name(cold)) == set()  # no spare yet: an id of no actor
-        ((spare, _),) = scenes._spares  # (its id, its actor), started for the next scene
+        (spare,) = _held(one.pool, 1)  # started for the next scene
         _until_alive(actor_name(spare))
-        assert scenes.new_id() == spare
-        ((idle, _),) = scenes._spares
-        _until_alive(actor_name(idle))
-        _until_dead(actor_name(idle), "a spare no scene took stayed")
-        assert scenes.new_id() != idle  # gone: not handed out
-        patient.new_id()
-        ((waiting, _),) = patient._spares
-        _until_alive(actor_name(waiting))
+        assert two.new_id() == spare  # through the other replica
+        (left,) = _held(one.pool, 1)  # one again, not one a replica
+        _until_alive(actor_name(left))
+        ray.kill(ray.get_actor(actor_name(left), namespace=NAMESPACE), no_restart=True)
+        _until_dead(actor_name(left))
+        assert one.new_id() not in (left, spare)  # gone: not handed out (and a fresh id)
+        (last,) = _held(one.pool, 1)
+        _until_dead(one.pool, "the pool outlived its idle time", seconds=30)
+        _until_dead(actor_name(last), "a spare outlived its pool", seconds=30)
     finally:
-        scenes.close()
-        patient.close()
         store.close()
-    _until_dead(actor_name(waiting), "a spare outlived its replica's end")
 
 
 def test_another_owner_s_request_leaves_a_scene_s_actor_in_place(ray_cluster):
