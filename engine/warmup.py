@@ -44,72 +44,123 @@ from engine.scene import SCHEMES, Scene
 from engine.trees.build import build_tree
 from engine.trees.surrogates import FITS
 
-__all__ = ["PARTS", "default_workers", "warm_scene", "warm_stamp", "warmup"]
+__all__ = ["PARTS", "SECTIONS", "default_workers", "warm_scene", "warm_stamp", "warmup"]
 
 
-def _tree_part() -> None:
-    """Tree builds (every fit), single and batched searches in both precisions (float64
-    first: :func:`_triangle_part` steps scenes with them)."""
-    for fit in FITS:  # "epsilon" and "paper" run the surrogate_fit kernels
+_NEAR = ([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])  # a pose whose box touches the first
+
+
+def _fits() -> None:
+    """Tree builds with every fit ("epsilon" and "paper" run the surrogate_fit kernels)."""
+    for fit in FITS:
         build_tree(box(), 0.05, fit=fit)
+
+
+def _batched(precision: str) -> None:
+    """The batched search in ``precision``, every kernel (one compile: the kernel is an
+    argument of the batch kernel)."""
     tree = build_tree(box(), 0.05)
-    near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
-    for precision in reversed(PRECISIONS):  # first: _triangle_part compiles the flat search
-        for kernel in KERNELS:
-            find_contacts_batch(
-                [(tree, Pose.identity(), tree, near)], kernel=kernel, precision=precision
+    for kernel in KERNELS:
+        pair = (tree, Pose.identity(), tree, Pose(*_NEAR))
+        find_contacts_batch([pair], kernel=kernel, precision=precision)
+
+
+def _single(precision: str) -> None:
+    """The single search in ``precision``, every kernel, with and without the hierarchy."""
+    tree = build_tree(box(), 0.05)
+    for kernel in KERNELS:
+        for hierarchy in (True, False):
+            find_contacts(
+                tree,
+                Pose.identity(),
+                tree,
+                Pose(*_NEAR),
+                kernel=kernel,
+                hierarchy=hierarchy,
+                precision=precision,
             )
-    for precision in PRECISIONS:
-        for kernel in KERNELS:
-            for hierarchy in (True, False):
-                find_contacts(
-                    tree,
-                    Pose.identity(),
-                    tree,
-                    near,
-                    kernel=kernel,
-                    hierarchy=hierarchy,
-                    precision=precision,
-                )
 
 
-def _triangle_part() -> None:
-    """The triangle-set API (distances from sets and from raw float64 and float32 arrays,
-    all-pairs and listed contacts) and :func:`mesh_distance`, in both precisions; then the
-    broad phase and one step of every scheme (their searches loaded, by then, from what
-    :func:`_tree_part` compiled)."""
+def _triangles(precision: str) -> None:
+    """The triangle-set API in ``precision``: distances from sets and from raw float64
+    (and, for float32, float32) arrays, all-pairs and listed contacts."""
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
-    tri32 = tri.astype(np.float32)
-    for precision in PRECISIONS:
-        sa = TriangleSet(tri, precision)
-        TriangleSet(tri.astype(precision), precision)  # prepared from float32 or float64
-        for kernel in KERNELS:
-            triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
-            triangle_distances(tri, tri, kernel, precision, 0.1, threads=1)  # raw: fused kernel
-            if precision == "float32":  # float32 meshes as they come
-                triangle_distances(tri32, tri32, kernel, precision, 0.1, threads=1)
-            triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
-            triangle_contacts(
-                sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
-            )
-    # _tree_part compiles the tree build meanwhile
+    sa = TriangleSet(tri, precision)
+    TriangleSet(tri.astype(precision), precision)  # prepared from float32 or float64
+    for kernel in KERNELS:
+        triangle_distances(sa, sa, kernel, precision, 0.1, threads=1)
+        triangle_distances(tri, tri, kernel, precision, 0.1, threads=1)  # raw: fused kernel
+        if precision == "float32":  # float32 meshes as they come
+            tri32 = tri.astype(np.float32)
+            triangle_distances(tri32, tri32, kernel, precision, 0.1, threads=1)
+        triangle_contacts(sa, sa, 0.1, 0.1, kernel=kernel, precision=precision, threads=1)
+        triangle_contacts(
+            sa, sa, 0.1, 0.1, pairs=[[0, 1]], kernel=kernel, precision=precision, threads=1
+        )
+
+
+def _mesh_distances() -> None:
+    """:func:`mesh_distance` in both precisions."""
     tree = build_tree(box(), 0.05)
-    near = Pose([0.9, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
     for precision in PRECISIONS:
-        mesh_distance(tree, Pose.identity(), tree, near, precision=precision)
-    many = np.arange(3 * (SMALL_SCENE + 1), dtype=float).reshape(-1, 3)  # the grid path
+        mesh_distance(tree, Pose.identity(), tree, Pose(*_NEAR), precision=precision)
+
+
+def _broad_phase() -> None:
+    """The broad phase's grid path, and a scene's kept candidate list (made, then filtered)."""
+    many = np.arange(3 * (SMALL_SCENE + 1), dtype=float).reshape(-1, 3)
     candidate_pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
-    kept = CandidateList()  # a scene's kept list: made, then filtered
+    kept = CandidateList()
     for _ in range(2):
         kept.pairs(many, np.ones(len(many)), np.zeros(len(many), bool))
-    scene = Scene(gravity=(0.0, 0.0, -9.81))  # broad phase, forces, motion update
+
+
+def _steps(schemes: tuple[str, ...]) -> None:
+    """One step of a small scene (two boxes over a plane, the lower one spinning) per
+    scheme of ``schemes``, in turn: the broad phase, forces, motion update."""
+    scene = Scene(gravity=(0.0, 0.0, -9.81))
     scene.add_plane(size=4.0, divisions=2)
     scene.add_body(box(), position=(0.0, 0.0, 0.505), angular_velocity=(0.0, 0.0, 1.0))
     scene.add_body(box(), position=(0.3, 0.0, 1.52))
     with warnings.catch_warnings():  # a synthetic scene: its fast spin may warn of tunnelling
         warnings.simplefilter("ignore", TunnellingWarning)
-        for scheme in SCHEMES:
+        for scheme in schemes:
             scene.step(1e-3, scheme)
+
+
+#: The warm-up's work as ``(name, function, arguments)`` sections that a process can run
+#: alone (``benchmarks/device/warm_wide.py`` runs each in a process of its own on a
+#: many-core machine); :data:`PARTS` runs them all, in two parts.
+SECTIONS = (
+    *((f"batched search {p}", _batched, (p,)) for p in PRECISIONS),
+    *((f"steps {s}", _steps, ((s, s),)) for s in SCHEMES),  # the second: warm starts
+    *((f"single search {p}", _single, (p,)) for p in PRECISIONS),
+    *((f"triangle sets {p}", _triangles, (p,)) for p in PRECISIONS),
+    ("fits", _fits, ()),
+    ("mesh_distance", _mesh_distances, ()),
+    ("broad phase", _broad_phase, ()),
+)
+
+
+def _tree_part() -> None:
+    """Tree builds (every fit), single and batched searches in both precisions (float64
+    first: :func:`_triangle_part` steps scenes with them)."""
+    _fits()
+    for precision in reversed(PRECISIONS):  # first: _triangle_part compiles the flat search
+        _batched(precision)
+    for precision in PRECISIONS:
+        _single(precision)
+
+
+def _triangle_part() -> None:
+    """The triangle-set API and :func:`mesh_distance`, in both precisions; then the broad
+    phase and one step of every scheme (their searches loaded, by then, from what
+    :func:`_tree_part` compiled)."""
+    for precision in PRECISIONS:
+        _triangles(precision)
+    _mesh_distances()  # _tree_part compiles the tree build meanwhile
+    _broad_phase()
+    _steps(SCHEMES)
 
 
 def warm_scene() -> float:

@@ -78,13 +78,12 @@ def test_a_worker_count_out_of_range_is_refused(workers):
         warmup_module.warmup(workers)
 
 
-WARM_SCENE_PROBE = """
+#: Python run after a probe's set-up: every kernel dispatched for the first time in this
+#: process from here on (loaded from the cache or compiled) is noted in ``dispatched``.
+NOTE_DISPATCHES = """
 import numba.core.dispatcher as dispatcher
-import engine
-from engine import Scene, shapes
 
-engine.warm_scene()
-dispatched = []  # kernels loaded or compiled from here on: a first call goes through this
+dispatched = []
 first_call = dispatcher.Dispatcher._compile_for_args
 
 
@@ -94,6 +93,26 @@ def noted(self, *args, **kwargs):
 
 
 dispatcher.Dispatcher._compile_for_args = noted
+"""
+
+
+def _dispatched(set_up: str, then: str) -> str:
+    """In a fresh process: ``set_up``, then ``then``; the kernels ``then`` dispatched for
+    the first time, as ``dispatched: name name …``."""
+    probe = f"{set_up}\n{NOTE_DISPATCHES}\n{then}\nprint('dispatched:', ' '.join(dispatched))"
+    found = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=600
+    )
+    assert found.returncode == 0, found.stderr[-3000:]
+    return found.stdout.strip().splitlines()[-1]
+
+
+def test_a_warmed_scene_process_loads_no_other_kernel_for_another_scene():
+    """After :func:`engine.warm_scene` (a fresh process), building another scene of other
+    meshes, stepping it with the default scheme and setting its state dispatch no kernel
+    for the first time: the warm-up loaded all of them."""
+    set_up = "import engine\nfrom engine import Scene, shapes\nengine.warm_scene()"
+    then = """
 scene = Scene(gravity=(0.0, 0.0, -9.81))
 scene.add_plane(size=4.0, divisions=2)
 scene.add_body(shapes.icosphere(2, radius=0.5), position=(0.0, 0.0, 0.52))
@@ -102,16 +121,18 @@ for _ in range(3):
     scene.step(1e-3)
 scene.set_state(positions=scene.positions)
 scene.step(1e-3)
-print("dispatched:", " ".join(dispatched))
 """
+    assert _dispatched(set_up, then) == "dispatched:"
 
 
-def test_a_warmed_scene_process_loads_no_other_kernel_for_another_scene():
-    """After :func:`engine.warm_scene` (a fresh process), building another scene of other
-    meshes, stepping it with the default scheme and setting its state dispatch no kernel
-    for the first time: the warm-up loaded all of them."""
-    found = subprocess.run(
-        [sys.executable, "-c", WARM_SCENE_PROBE], capture_output=True, text=True, timeout=600
-    )
-    assert found.returncode == 0, found.stderr[-3000:]
-    assert found.stdout.strip().splitlines()[-1] == "dispatched:", found.stdout
+def test_the_sections_alone_dispatch_every_kernel_of_the_parts():
+    """In a fresh process, every section of :data:`SECTIONS` run alone, then the parts: the
+    parts dispatch no kernel for the first time (benchmarks/device/warm_wide.py compiles
+    the sections in processes of their own and counts on it)."""
+    set_up = """
+import importlib
+warmup = importlib.import_module("engine.warmup")
+for name, function, arguments in warmup.SECTIONS:
+    function(*arguments)
+"""
+    assert _dispatched(set_up, "for part in warmup.PARTS:\n    part()") == "dispatched:"
