@@ -90,10 +90,11 @@ def _worker_store(settings: Settings) -> tuple[Store, BankCache]:
 #: than it has CPUs (its actors count: replicas, scenes, spares): Ray's default is 1 s, after
 #: which a split request's task on that node waits for a fresh worker (seconds: Python, the
 #: kernels, the store) and the replica searches the whole run itself. Measured (BENCHMARKS.md,
-#: issue 18, ninth session; 2 nodes of 1 CPU, a replica on each, the other replica's request
-#: and 0.6 s between two splits): 743-1,231 ms a split search, 2 of 5 not split, with Ray's
-#: 1 s; 324-379 ms with 10 minutes. The README's ``ray start``, the compose file and
-#: ``mrdem cluster serve``'s own local cluster set it.
+#: issue 18, ninth session; ``benchmarks/cluster.py --only batch --pause 0.6``: 2 nodes of
+#: 1 CPU, a replica on each, the other replica's request and 0.6 s between two splits): a
+#: task searched in 4 of 9 rounds and the split gave 1.01x with Ray's 1 s; 9 of 9 and 1.60x
+#: with 10 minutes. The README's ``ray start``, the compose file and ``mrdem cluster
+#: serve``'s own local cluster set it.
 IDLE_WORKERS_VARIABLE = "RAY_idle_worker_killing_time_threshold_ms"
 IDLE_WORKERS_MS = 600_000
 IDLE_WORKERS = f"{IDLE_WORKERS_VARIABLE}={IDLE_WORKERS_MS}"
