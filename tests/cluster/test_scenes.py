@@ -163,9 +163,27 @@ def _loaded(name: str, seconds: float = 30.0) -> None:
         time.sleep(0.2)
 
 
+def _until_a_pool_holds_a_spare(seconds: float = 60.0) -> None:
+    """Until a pool of spares (:class:`SparePool`) runs and holds one."""
+    import ray
+    from ray.util.state import list_actors
+
+    from service.cluster import NAMESPACE
+
+    deadline = time.monotonic() + seconds
+    while True:
+        filters = [("class_name", "=", "SparePool"), ("state", "=", "ALIVE")]
+        for pool in list_actors(filters=filters, limit=100):
+            with contextlib.suppress(ValueError):  # left meanwhile
+                if ray.get(ray.get_actor(pool.name, namespace=NAMESPACE).held.remote()):
+                    return
+        assert time.monotonic() < deadline, "no pool of spares holds one"
+        time.sleep(0.2)
+
+
 def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
     """The first scene made starts a spare actor for the next (``MRDEM_SCENE_SPARES``, held
-    by the replicas' pool): of three scenes made through two replicas, a later one takes a
+    by the replicas' pool): of two scenes made then through two replicas, one takes a
     spare's id — its actor exists before any request for the scene — loads the scene before
     such a request, and answers its first step."""
     import ray
@@ -174,7 +192,9 @@ def test_a_new_scene_takes_an_actor_started_before_it(ray_cluster):
 
     _, url, _ = ray_cluster
     with Client(url) as client:
-        made = [_scene(client) for _ in range(3)]
+        made = [_scene(client)]
+        _until_a_pool_holds_a_spare()  # started by the first scene's creation
+        made += [_scene(client) for _ in range(2)]
         taken = []
         for scene in made:
             with contextlib.suppress(ValueError):  # none: the scene's actor comes with a request
@@ -227,7 +247,10 @@ def test_the_replicas_share_their_spares_which_leave_when_idle(ray_cluster):
         assert _states(actor_name(cold)) == set()  # no spare yet: an id of no actor
         (spare,) = _held(one.pool, 1)  # started for the next scene
         _until_alive(actor_name(spare))
-        assert two.new_id() == spare  # through the other replica
+        taken = two.new_id()  # through the other replica
+        if taken != spare:  # its first call waits 0.1 s for the pool: a loaded machine
+            taken = two.new_id()
+        assert taken == spare
         (left,) = _held(one.pool, 1)  # one again, not one a replica
         _until_alive(actor_name(left))
         ray.kill(ray.get_actor(actor_name(left), namespace=NAMESPACE), no_restart=True)
