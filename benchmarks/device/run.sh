@@ -6,7 +6,8 @@
 #   python3 benchmarks/cluster.py --haproxy --replicas 1,2,4,8 --clients 32 --client-processes 8 --seconds 10
 # (REPLICAS, CLIENTS, PROCS, SECS change those; further arguments are passed on). A later
 # run on the same (warm) machine skips the set-up. Its log and JSON go to $OUT (or
-# bench-results/), named with $TAG (default "run").
+# bench-results/), named with $TAG (default "run"). session.sh beside it runs issue 18's
+# checks in one call.
 set -o pipefail
 T0=$SECONDS
 TAG=${TAG:-run}
