@@ -276,8 +276,8 @@ def big_batch(url: str, pairs: int, repeats: int, splits: bool, settle: float = 
 def paired_batch(urls: dict, pairs: int, repeats: int, pause: float = 0.0) -> dict:
     """The big batch sent to each of ``urls`` (name → app) in turn, one request each per
     round, ``repeats`` rounds after a warm request each, ``pause`` seconds before each
-    request: the apps see the machine alike
-    (its drifting speed, its neighbours), so each round's ratio compares like with like.
+    request: the apps see the machine alike (its drifting speed, its neighbours), so each
+    round's ratio compares like with like.
     Per app: each request's seconds and search seconds, the medians; the median of the
     rounds' ratios of the first app's to the second's."""
     timings = {name: _Timings() for name in urls}
@@ -481,6 +481,8 @@ class RayCluster:
 
 
 def main() -> None:
+    from service.cluster.batches import IDLE_WORKERS_MS, IDLE_WORKERS_VARIABLE
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="shorter runs")
     parser.add_argument("--replicas", default="1,2", help="replica counts to measure")
@@ -527,13 +529,13 @@ def main() -> None:
     parser.add_argument(
         "--idle-worker-ms",
         type=int,
-        default=600_000,
+        default=IDLE_WORKERS_MS,
         help="how long a node keeps an idle worker once it runs more workers than CPUs:"
-        " RAY_idle_worker_killing_time_threshold_ms, as the README sets it (Ray's default: 1000)",
+        f" {IDLE_WORKERS_VARIABLE}, as the README sets it by default (Ray's default: 1000)",
     )
     args = parser.parse_args()
     os.environ["RAY_worker_niceness"] = str(args.worker_niceness)  # noqa: SIM112 (Ray spells it so)
-    os.environ["RAY_idle_worker_killing_time_threshold_ms"] = str(args.idle_worker_ms)  # noqa: SIM112
+    os.environ[IDLE_WORKERS_VARIABLE] = str(args.idle_worker_ms)
     if args.haproxy:  # before the cluster starts: its processes inherit them
         os.environ.update(
             {"RAY_SERVE_ENABLE_HA_PROXY": "1", "RAY_SERVE_ENABLE_DIRECT_INGRESS": "1"}

@@ -42,6 +42,7 @@ from common import machine  # noqa: E402
 
 from clients import Client  # noqa: E402
 from mrdem_common.loopback import PostgresServer, S3Server  # noqa: E402
+from service.cluster.batches import IDLE_WORKERS_MS, IDLE_WORKERS_VARIABLE  # noqa: E402
 
 OUT = ROOT / "bench-results"
 REPLICA = "X-Mrdem-Replica"
@@ -135,7 +136,7 @@ def main() -> None:
     parser.add_argument("--haproxy", action="store_true", help="Serve's HAProxy ingress")
     args = parser.parse_args()
     os.environ["RAY_worker_niceness"] = "0"  # noqa: SIM112 (Ray spells it so) as the README
-    os.environ["RAY_idle_worker_killing_time_threshold_ms"] = "600000"  # noqa: SIM112 (README)
+    os.environ[IDLE_WORKERS_VARIABLE] = str(IDLE_WORKERS_MS)  # as the README's ray start
     os.environ["RAY_SERVE_REPLICA_AUTOSCALING_METRIC_PUSH_INTERVAL_S"] = str(args.push)
     if args.haproxy:  # before the cluster starts: its processes inherit them
         os.environ["RAY_SERVE_ENABLE_HA_PROXY"] = "1"

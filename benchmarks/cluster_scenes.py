@@ -45,6 +45,7 @@ from common import machine  # noqa: E402
 from clients import Client  # noqa: E402
 from engine import shapes  # noqa: E402
 from mrdem_common.loopback import PostgresServer, S3Server  # noqa: E402
+from service.cluster.batches import IDLE_WORKERS_MS, IDLE_WORKERS_VARIABLE  # noqa: E402
 
 OUT = ROOT / "bench-results"
 
@@ -146,7 +147,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     os.environ["RAY_worker_niceness"] = str(args.worker_niceness)  # noqa: SIM112 (Ray spells it so)
-    os.environ["RAY_idle_worker_killing_time_threshold_ms"] = "600000"  # noqa: SIM112 (README)
+    os.environ[IDLE_WORKERS_VARIABLE] = str(IDLE_WORKERS_MS)  # as the README's ray start
     out: dict = {"machine": machine(), "args": vars(args)}
     print(f"machine: {out['machine'].get('cpu')}")
     postgres, s3 = PostgresServer(), S3Server()
